@@ -85,6 +85,7 @@ class FaceCarrier:
         amp, wavelength, azimuth, phase = style.wave
         direction = np.array([np.cos(azimuth), 0.0, np.sin(azimuth)])
         gain = style.intensity * (1.0 + style.asymmetry * np.tanh(x[:, 0] / 0.02))
-        gain *= 1.0 + amp * np.sin(2 * np.pi * (x @ direction) / wavelength + phase)
+        if amp:
+            gain *= 1.0 + amp * np.sin(2 * np.pi * (x @ direction) / wavelength + phase)
         out[self.idx] = carried * gain[:, None]
         return out

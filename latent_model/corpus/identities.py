@@ -37,7 +37,7 @@ class FaceStyle:
     intensity: float = 1.0  # overall gain
     spread: float = 0.0  # >0 widens the shapes (blend toward a smoothed field), <0 sharpens
     asymmetry: float = 0.0  # left/right gain difference
-    wave: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0)  # (amplitude, wavelength m, azimuth rad, phase)
+    wave: tuple[float, float, float, float] = (0.0, 0.1, 0.0, 0.0)  # (amplitude, wavelength m, azimuth rad, phase)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,249 @@
+"""`lrr` command line: corpus building and inspection (training/evaluation come with later issues)."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+from latent_model.config import PRESETS, corpus_preset, default_corpus_dir
+
+
+class UserError(Exception):
+    """An error the user can fix; printed without a traceback."""
+
+
+def _corpus_path(args) -> Path:
+    return Path(args.corpus) if getattr(args, "corpus", None) else default_corpus_dir(args.preset)
+
+
+def _open_corpus(args):
+    from latent_model.corpus.store import Corpus
+
+    return Corpus(_corpus_path(args))
+
+
+def _parse_shard(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise UserError(f"--shard {text!r}: expected I/N, e.g. 0/4") from None
+    if not 0 <= i < n:
+        raise UserError(f"--shard {text}: need 0 <= I < N")
+    return i, n
+
+
+def cmd_build(args) -> None:
+    from tqdm import tqdm
+
+    from latent_model.corpus.build import build
+
+    cfg = corpus_preset(args.preset)
+    out = Path(args.out) if args.out else default_corpus_dir(args.preset)
+    shard = _parse_shard(args.shard)
+    bar = tqdm(total=None, unit="identity", desc=f"corpus {args.preset}", disable=args.quiet)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    r = build(cfg, out, workers=args.workers, shard=shard, force=args.force, progress=progress)
+    bar.close()
+    if r.identities_built == 0 and r.seconds == 0.0:
+        print(f"{out}: already built for preset {args.preset} (use --force to rebuild)")
+    else:
+        sdf_per_s = r.geometries_built / r.sdf_seconds * args.workers if r.sdf_seconds else float("nan")
+        mesh_per_s = r.geometries_built / r.mesh_seconds * args.workers if r.mesh_seconds else float("nan")
+        print(f"built {r.identities_built} identities, {r.geometries_built} geometries in {r.seconds:.1f} s "
+              f"({r.geometries_built / max(r.seconds, 1e-9):.1f} states/s overall; per worker-second: "
+              f"{mesh_per_s / args.workers:.1f} meshes/s, {sdf_per_s / args.workers:.1f} SDF states/s; "
+              f"{args.workers} workers)")
+    if shard is None and (out / "manifest.json").exists():
+        args.corpus = str(out)
+        cmd_info(args)
+    elif shard is not None:
+        print(f"shard {shard[0]}/{shard[1]} written to {out}; join shards with `lrr corpus merge --out DIR SHARD...`")
+
+
+def cmd_merge(args) -> None:
+    from tqdm import tqdm
+
+    from latent_model.corpus.build import merge
+
+    bar = tqdm(unit="identity", desc="merge")
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    out = merge([Path(p) for p in args.shards], Path(args.out), progress=progress)
+    bar.close()
+    print(f"merged {len(args.shards)} shards into {out}")
+
+
+def cmd_info(args) -> None:
+    import numpy as np
+
+    from latent_model.corpus.build import corpus_variety
+    from latent_model.corpus.inspect import corrective_table, offset_copy_explained
+    from latent_model.corpus.poses import get_pose
+
+    c = _open_corpus(args)
+    m = c.manifest
+    train, test = c.split_indices("train"), c.split_indices("test")
+    stylised = [s.id for s in c.identities if s.stylised]
+    sizes = {p.name: p.stat().st_size for p in c.path.glob("*.npy")}
+    print(f"corpus {c.path}  (preset {c.config.preset}, format v{m['format_version']}, digest {m['config_digest']})")
+    print(f"identities {len(c.identities)}: {len(train)} train / {len(test)} test; stylised (test): {', '.join(stylised) or '-'}")
+    singles = [p for p in c.poses if not get_pose(p).is_combo]
+    print(f"poses {len(c.poses)} ({len(singles)} single, {len(c.poses) - len(singles)} combined); "
+          f"states {m['n_states']}; geometries {m['n_geometries']}; vertices/mesh {m['n_vertices']}; "
+          f"SDF samples/state {c.config.sdf.k}; disk {sum(sizes.values()) / 1e9:.2f} GB")
+    v = corpus_variety(c)
+    print("variety (neutral meshes, pelvis-aligned, mean per-vertex distance):")
+    print(f"  nearest-identity distance: median {v['nearest_median_mm']:.1f} mm, min {v['nearest_min_mm']:.1f} mm; "
+          f"pairwise median {v['pairwise_median_mm']:.1f} mm, max {v['pairwise_max_mm']:.1f} mm")
+    print(f"  stature {v['stature_min_m']:.2f}-{v['stature_max_m']:.2f} m (median {v['stature_median_m']:.2f}); "
+          f"volume {v['volume_min_l']:.1f}-{v['volume_max_l']:.1f} L (median {v['volume_median_l']:.1f})")
+    sexes = [s.phenotypes.get("gender", 0.5) for s in c.identities]
+    print(f"  sex: {sum(g >= 0.5 for g in sexes)} male / {sum(g < 0.5 for g in sexes)} female; "
+          f"muscle {min(s.phenotypes.get('muscle', .5) for s in c.identities):.2f}-{max(s.phenotypes.get('muscle', .5) for s in c.identities):.2f}, "
+          f"weight {min(s.phenotypes.get('weight', .5) for s in c.identities):.2f}-{max(s.phenotypes.get('weight', .5) for s in c.identities):.2f}")
+    if args.brief:
+        return
+    print("pose-space correctives |V_skin+bs - V_skin| (mm; max over identities, mean over moved vertices, std of per-identity max):")
+    for row in corrective_table(c):
+        print(f"  {row['pose']:40s} max {row['max_mm']:6.2f}  mean {row['mean_mm']:5.2f}  id-std {row['max_std_mm']:5.2f}")
+    face = [p for p in singles if get_pose(p).group == "face"]
+    body = [p for p in singles if get_pose(p).group == "body"]
+    fe = offset_copy_explained(c, face)
+    be = offset_copy_explained(c, body)
+    print("nearest-identity vertex-offset copy, explained motion (1 - err/err_no_motion), all identities:")
+    print(f"  facial poses: mean {np.mean(list(fe.values())):.3f}  ({', '.join(f'{k} {x:.2f}' for k, x in fe.items())})")
+    print(f"  body poses:   mean {np.mean(list(be.values())):.3f}")
+
+
+def cmd_poses(args) -> None:
+    from latent_model.corpus.poses import POSES, pose_line
+
+    names = list(POSES)
+    if getattr(args, "corpus", None) or args.preset:
+        cfg = corpus_preset(args.preset) if args.preset else None
+        names = list(cfg.pose_names()) if cfg else names
+    for n in names:
+        print(pose_line(POSES[n]))
+    print(f"{len(names)} poses")
+
+
+def cmd_export(args) -> None:
+    import trimesh
+
+    c = _open_corpus(args)
+    try:
+        s = c.parse_state(args.state)
+    except KeyError as e:
+        raise UserError(str(e).strip("'\"")) from None
+    out = Path(args.output)
+    suffix = out.suffix.lower()
+    if suffix not in (".ply", ".obj", ".stl", ".glb", ".off"):
+        raise UserError(f"{out}: unsupported format {suffix or '(none)'}; use .ply, .obj, .stl, .glb or .off")
+    mesh = trimesh.Trimesh(c.vertices(s), c.faces, process=False)
+    tmp = out.with_name(f".{out.name}.tmp{suffix}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    mesh.export(tmp)
+    os.replace(tmp, out)
+    print(f"wrote {c.state_name(s)} to {out} ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces)")
+
+
+def cmd_sheet(args) -> None:
+    from latent_model.corpus.sheet import DEFAULT_SHEET_POSES, contact_sheet
+
+    c = _open_corpus(args)
+    ids = None
+    if args.identities:
+        try:
+            ids = [c.identity_index(x) for x in args.identities.split(",")]
+        except KeyError as e:
+            raise UserError(str(e).strip("'\"")) from None
+    poses = tuple(args.poses.split(",")) if args.poses else DEFAULT_SHEET_POSES
+    for p in poses:
+        if p != "neutral":
+            try:
+                c.pose_index(p)
+            except KeyError as e:
+                raise UserError(str(e).strip("'\"")) from None
+    out = contact_sheet(c, Path(args.output), ids, poses)
+    print(f"wrote {out}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="lrr", description="LatentReRig: corpus, training, evaluation, prediction")
+    sub = ap.add_subparsers(dest="command", required=True)
+    corpus = sub.add_parser("corpus", help="build and inspect the rig-generated corpus")
+    cs = corpus.add_subparsers(dest="corpus_command", required=True)
+
+    def with_corpus(p, preset_default="standard"):
+        p.add_argument("--preset", default=preset_default, choices=PRESETS,
+                       help=f"preset whose default corpus location is used (default {preset_default})")
+        p.add_argument("--corpus", help="corpus directory (overrides --preset's default location)")
+        return p
+
+    b = cs.add_parser("build", help="build (or resume) a corpus")
+    b.add_argument("--preset", required=True, choices=PRESETS)
+    b.add_argument("--out", help="output directory (default: $LRR_DATA/corpus/PRESET, LRR_DATA defaults to ~/.cache/latentrerig)")
+    b.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), help="worker processes (default: 2)")
+    b.add_argument("--shard", help="build only shard I/N of the identities (merge shards with `lrr corpus merge`)")
+    b.add_argument("--force", action="store_true", help="replace an existing corpus or unfinished build of another config")
+    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    b.add_argument("--brief", action="store_true", help="print only the short summary afterwards")
+    b.set_defaults(func=cmd_build)
+
+    mg = cs.add_parser("merge", help="join shard outputs into one corpus")
+    mg.add_argument("--out", required=True)
+    mg.add_argument("shards", nargs="+")
+    mg.set_defaults(func=cmd_merge)
+
+    i = with_corpus(cs.add_parser("info", help="summary: sizes, split, variety, correctives, offset-copy baseline"))
+    i.add_argument("--brief", action="store_true", help="skip the corrective table and the offset-copy baseline")
+    i.set_defaults(func=cmd_info)
+
+    p = cs.add_parser("poses", help="the pose vocabulary: name, single/combo, skeletal and blendshape parts")
+    p.add_argument("--preset", choices=PRESETS, help="only the poses of this preset (default: whole vocabulary)")
+    p.set_defaults(func=cmd_poses)
+
+    e = with_corpus(cs.add_parser("export", help="write one state as a mesh file"))
+    e.add_argument("state", help="ID/POSE/VARIANT or ID/neutral, e.g. id003/elbowBentLf/skinning_plus_blendshape")
+    e.add_argument("-o", "--output", required=True, help="output mesh (.ply .obj .stl .glb .off)")
+    e.set_defaults(func=cmd_export)
+
+    s = with_corpus(cs.add_parser("sheet", help="render a contact sheet (identities x poses) to PNG"))
+    s.add_argument("-o", "--output", required=True)
+    s.add_argument("--identities", help="comma-separated ids (default: the first 8)")
+    s.add_argument("--poses", help="comma-separated poses ('neutral' allowed)")
+    s.set_defaults(func=cmd_sheet)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    from latent_model.corpus.poses import UnknownPoseError
+    from latent_model.corpus.store import CorpusError
+
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except (UserError, CorpusError, UnknownPoseError, ValueError) as e:
+        print(f"lrr: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("lrr: interrupted (a corpus build resumes where it stopped)", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

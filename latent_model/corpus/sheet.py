@@ -1,0 +1,72 @@
+"""Contact sheet: identities (rows) x poses (columns), rendered with the matplotlib renderer."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from latent_model.corpus.poses import get_pose
+from latent_model.corpus.store import Corpus
+from latent_model.render import draw_mesh
+
+DEFAULT_SHEET_POSES = ("neutral", "elbowSuperBentLf", "kneeBentLf", "shoulderRaiseLf", "fistLf",
+                       "browDwLf+browDwRt", "cornerUpLf", "jawOpen", "puffLf")
+
+
+def _crop(ax, v: np.ndarray, pose: str) -> None:
+    """Zoom facial poses on the head and finger poses on the hand, so the shape is visible."""
+    if pose == "neutral":
+        return
+    p = get_pose(pose)
+    if p.group == "face":
+        top = v[:, 2].max()
+        ax.set_xlim(-0.11, 0.11)
+        ax.set_ylim(top - 0.27, top + 0.01)
+    elif p.group == "finger" or pose.startswith("fist"):
+        side = 1.0 if pose.endswith("Lf") else -1.0
+        hand = v[v[:, 0] * side > 0.38] if (v[:, 0] * side > 0.38).any() else v
+        c = hand.mean(axis=0)
+        ax.set_xlim(c[0] - 0.12, c[0] + 0.12)
+        ax.set_ylim(c[2] - 0.14, c[2] + 0.10)
+
+
+def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None,
+                  poses: tuple[str, ...] | None = None, dpi: int = 70) -> Path:
+    """Render the sheet to PNG at `out` (written atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ids = identities if identities is not None else list(range(min(8, len(corpus.identities))))
+    poses = tuple(p for p in (poses or DEFAULT_SHEET_POSES) if p == "neutral" or p in corpus.poses)
+    fig, axes = plt.subplots(len(ids), len(poses), figsize=(2.0 * len(poses), 2.6 * len(ids)), squeeze=False)
+    for r, i in enumerate(ids):
+        spec = corpus.identities[i]
+        st = corpus.identity_stats[i].get("stature_m", float("nan")) if corpus.identity_stats else float("nan")
+        neutral = corpus.vertices(corpus.state(i, None, "neutral"))
+        for c, pose in enumerate(poses):
+            ax = axes[r, c]
+            s = corpus.state(i, None, "neutral") if pose == "neutral" else corpus.state(i, pose, "skinning_plus_blendshape")
+            v = corpus.vertices(s)
+            values = None
+            if pose != "neutral":
+                values = np.linalg.norm(v - neutral, axis=1) * 1000
+            view = "side" if pose.startswith(("knee", "hip")) else "front"
+            draw_mesh(ax, v, corpus.faces, view, values=values, cmap="inferno", vmin=0,
+                      vmax=20 if values is not None else None)
+            _crop(ax, v, pose)
+            if r == 0:
+                ax.set_title(pose, fontsize=8)
+            if c == 0:
+                label = f"{spec.id} {spec.split}{' stylised' if spec.stylised else ''}\n{st:.2f} m"
+                ax.text(0.0, 1.0, label, transform=ax.transAxes, fontsize=7, va="top")
+    fig.suptitle("Corpus contact sheet (colour: displacement from neutral, 0-20 mm)", fontsize=10)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp.png")
+    fig.savefig(tmp, dpi=dpi)
+    plt.close(fig)
+    tmp.replace(out)
+    return out

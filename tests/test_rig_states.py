@@ -1,0 +1,111 @@
+"""Rig, variants, correctives and facial shapes (directly through the state generator)."""
+import numpy as np
+import pytest
+
+from latent_model.corpus.identities import FaceStyle, IdentitySpec, sample_identities
+from latent_model.corpus.poses import POSES
+from latent_model.corpus.rig import MIRROR
+
+SYMMETRIC = IdentitySpec("sym", "train", {}, {})  # anny's base mesh is left/right symmetric
+
+
+@pytest.fixture(scope="module")
+def people(generator):
+    specs = sample_identities(8, 2, 1, 0, generator.rig.local_change_labels)
+    return specs[0], specs[1]
+
+
+@pytest.mark.parametrize("variant", ["skinning", "blendshape", "skinning_plus_blendshape"])
+@pytest.mark.parametrize("pose", ["elbowBentLf", "kneeBentLf", "fingerKnuckleC02Lf", "spineTwistLf"])
+def test_left_pose_mirrors_to_right_pose(generator, pose, variant):
+    mm = generator.rig.mirror_map
+    left = generator.state(SYMMETRIC, pose, variant)
+    right = generator.state(SYMMETRIC, pose[:-2] + "Rt", variant)
+    err = np.linalg.norm((left @ MIRROR)[mm] - right, axis=1).max()
+    assert err < 1e-3, f"{pose} mirrored differs from its Rt twin by {err * 1000:.2f} mm"
+    # and the pose really moves something (so the check is not vacuous)
+    assert np.linalg.norm(left - generator.neutral(SYMMETRIC), axis=1).max() > 0.002
+
+
+def test_elbow_bent_reaches_about_ninety_degrees(generator):
+    rest, _ = generator.rest(SYMMETRIC)
+    rig = generator.rig
+    T = rig.bone_transforms(rest, POSES["elbowBentLf"].joints)
+    h = rest.heads
+    b = rig.bone_index
+    posed = lambda i: (T[i] @ np.append(h[i], 1.0))[:3]  # noqa: E731
+    upper = posed(b["lowerarm01.L"]) - posed(b["upperarm01.L"])
+    fore = posed(b["wrist.L"]) - posed(b["lowerarm01.L"])
+    angle = np.degrees(np.arccos(upper @ fore / np.linalg.norm(upper) / np.linalg.norm(fore)))
+    assert 80 < angle < 100  # flexion angle between segments
+
+
+def test_variants_are_exact_compositions(generator, people):
+    a, _ = people
+    g = generator.pose(a, "elbowSuperBentLf")
+    rest, _ = generator.rest(a)
+    # blendshape = rest + shapes (facial + corrective), no bones
+    assert np.allclose(g.blendshape, rest.vertices + g.face + g.corrective, atol=1e-12)
+    # skinning_plus_blendshape - skinning is exactly the skinned corrective A_v C
+    A = generator.rig.blended_linear(g.transforms)
+    skinned_corr = np.einsum("vij,vj->vi", A, g.corrective + g.face)
+    assert np.allclose(g.skinning_plus_blendshape - g.skinning, skinned_corr, atol=1e-9)
+    assert np.abs(skinned_corr).max() > 0.003
+
+
+def test_face_only_pose_has_no_skeletal_motion(generator, people):
+    a, _ = people
+    g = generator.pose(a, "browDwLf")
+    assert np.array_equal(g.skinning, generator.neutral(a))
+    assert np.array_equal(g.skinning_plus_blendshape, g.blendshape)
+
+
+def test_correctives_are_localised_nontrivial_and_identity_dependent(generator, people):
+    a, b = people
+    ca = generator.pose(a, "elbowBentLf").corrective
+    cb = generator.pose(b, "elbowBentLf").corrective
+    rest_a, _ = generator.rest(a)
+    elbow = rest_a.heads[generator.rig.bone_index["lowerarm01.L"]]
+    far = np.linalg.norm(rest_a.vertices - elbow, axis=1) > 0.35
+    assert np.abs(ca[far]).max() < 1e-5, "corrective leaks far from the elbow"
+    mag_a, mag_b = np.linalg.norm(ca, axis=1), np.linalg.norm(cb, axis=1)
+    assert mag_a.max() > 0.003
+    # same topology: compare per-vertex corrective fields between identities
+    assert np.linalg.norm(ca - cb, axis=1).mean() > 0.1 * mag_a.mean()
+
+
+def test_flesh_bulge_scales_with_muscle(generator):
+    from latent_model.corpus.correctives import flesh_corrective
+
+    rest, normals = generator.rest(SYMMETRIC)
+    joints = POSES["elbowSuperBentLf"].joints
+    m = lambda muscle: np.linalg.norm(flesh_corrective(generator.rig, rest, normals, joints, muscle, 0.5), axis=1).max()  # noqa: E731
+    assert m(1.0) > 2.0 * m(0.0) and m(0.0) > 0.002
+
+
+def test_facial_shapes_differ_between_identities(generator, people):
+    a, b = people
+    fa = generator.pose(a, "cornerUpLf").face
+    fb = generator.pose(b, "cornerUpLf").face
+    assert np.linalg.norm(fa, axis=1).max() > 0.005
+    rel = np.linalg.norm(fa - fb, axis=1).mean() / np.linalg.norm(fa, axis=1).mean()
+    assert rel > 0.1, f"facial offsets nearly identical across identities (relative diff {rel:.3f})"
+
+
+def test_carried_face_scales_with_head_size(generator):
+    plain = FaceStyle()
+    small = IdentitySpec("small", "train", {}, {"head-scale-vert-incr": -1.0, "head-scale-horiz-incr": -1.0,
+                                                "head-scale-depth-incr": -1.0}, plain)
+    big = IdentitySpec("big", "train", {}, {"head-scale-vert-incr": 1.0, "head-scale-horiz-incr": 1.0,
+                                            "head-scale-depth-incr": 1.0}, plain)
+    m = lambda s: np.linalg.norm(generator.pose(s, "jawOpen").face, axis=1).max()  # noqa: E731
+    assert m(big) > 1.05 * m(small)
+
+
+def test_one_sided_mask_keeps_other_side_still(generator, people):
+    a, _ = people
+    g = generator.pose(a, "puffLf")
+    rest, _ = generator.rest(a)
+    right = rest.vertices[:, 0] < -0.03
+    assert np.linalg.norm(g.face[right], axis=1).max() < 0.0007
+    assert np.linalg.norm(g.face, axis=1).max() > 0.005
