@@ -1,4 +1,4 @@
-"""`lrr` command line: corpus building and inspection (training/evaluation come with later issues)."""
+"""`lrr` command line: corpus building and inspection, training (evaluation and prediction come later)."""
 from __future__ import annotations
 
 import argparse
@@ -181,6 +181,31 @@ def cmd_sheet(args) -> None:
     print(f"wrote {out}")
 
 
+def cmd_train(args) -> None:
+    from latent_model.config import data_root, preset
+    from latent_model.corpus.store import Corpus
+    from latent_model.train.loop import dist_info, init_distributed, select_device
+    from latent_model.train.phases import train
+
+    init_distributed()
+    p = preset(args.preset)
+    corpus_dir = Path(args.corpus) if args.corpus else default_corpus_dir(args.preset)
+    corpus = Corpus(corpus_dir)
+    if corpus.manifest["config_digest"] != p.corpus.digest():
+        raise UserError(f"corpus {corpus_dir} was built with another config than preset {args.preset!r}; "
+                        f"build it with `lrr corpus build --preset {args.preset}` or pass --corpus")
+    run_dir = Path(args.run_dir) if args.run_dir else data_root() / "runs" / args.preset
+    phases = {"phase-a": "a", "phase-b": "b", "all": "all"}[args.phase]
+    device = select_device()
+    rank, world = dist_info()
+    if rank == 0:
+        print(f"training {args.phase} of preset {args.preset} on {device} ({world} process(es)); run dir {run_dir}")
+    t = time.perf_counter()
+    final = train(p, corpus, run_dir, phases, device=device, fresh=args.fresh, progress=not args.quiet)
+    if rank == 0:
+        print(f"done in {time.perf_counter() - t:.1f} s; model: {final}; logs and loss curves in {run_dir}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lrr", description="LatentReRig: corpus, training, evaluation, prediction")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -226,17 +251,27 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--identities", help="comma-separated ids (default: the first 8)")
     s.add_argument("--poses", help="comma-separated poses ('neutral' allowed)")
     s.set_defaults(func=cmd_sheet)
+
+    t = sub.add_parser("train", help="train Phase A (SDF-VAE), Phase B (vertex decoder) or both; resumes")
+    t.add_argument("phase", choices=("phase-a", "phase-b", "all"))
+    t.add_argument("--preset", required=True, choices=PRESETS)
+    t.add_argument("--corpus", help="corpus directory (default: the preset's)")
+    t.add_argument("--run-dir", help="run directory for checkpoints, logs, loss curves (default: $LRR_DATA/runs/PRESET)")
+    t.add_argument("--fresh", action="store_true", help="ignore resume state and start the phase(s) over")
+    t.add_argument("--quiet", action="store_true", help="no progress bars")
+    t.set_defaults(func=cmd_train)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     from latent_model.corpus.poses import UnknownPoseError
     from latent_model.corpus.store import CorpusError
+    from latent_model.train.checkpoint import CheckpointError
 
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (UserError, CorpusError, UnknownPoseError, ValueError) as e:
+    except (UserError, CorpusError, CheckpointError, UnknownPoseError, ValueError) as e:
         print(f"lrr: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

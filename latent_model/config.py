@@ -76,3 +76,117 @@ def data_root() -> Path:
 
 def default_corpus_dir(preset: str) -> Path:
     return data_root() / "corpus" / preset
+
+
+# ----------------------------------------------------------------------------- model + training
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network sizes. `paper`: Z=512 and a DeepSDF-width (512 x 8) SDF decoder."""
+
+    latent: int = 512  # Z
+    enc_fourier: int = 6  # frequencies of the point positional encoding
+    enc_hidden: tuple[int, ...] = (128, 256)  # per-point MLP widths
+    enc_heads: int = 4  # attention-pooling heads (permutation invariant, count-consistent)
+    enc_out_hidden: int = 512
+    sdf_hidden: int = 256
+    sdf_layers: int = 6  # latent + x re-injected (skip) at the middle layer, as DeepSDF
+    sdf_clamp: float = 0.05  # metres: clamp of the SDF reconstruction loss near the surface
+    n_identities: int = 64  # training identities (character classifier classes)
+    n_poses: int = 81  # pose classifier classes
+    vd_fourier: int = 4
+    vd_hidden: int = 64
+    vd_cond: int = 128
+    vd_bones: int = 16  # virtual bones of the coarse stage
+    vd_knn: int = 8  # neighbours in the local refinement stages
+    vd_edge: int = 32  # edge-feature width of the refinement stages
+    vd_stages: int = 4
+    vd_detail: bool = True  # residual detail branch
+    n_pair_kinds: int = 4
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """Every loss weight; 0 switches a term off (ablations)."""
+
+    rec: float = 1.0
+    cls: float = 0.05
+    pose_cls: float = 0.05
+    kl: float = 1e-4
+    variant: float = 0.5
+    combo: float = 0.5
+    contrast: float = 0.1
+    contrast_temperature: float = 0.1
+    pos: float = 1.0
+    knn: float = 0.5
+    knn_delta: float = 0.5
+    static: float = 0.5
+    smooth: float = 0.1
+    nrm: float = 0.05
+    skinbs: float = 2.0
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    seed: int = 0
+    # phase A
+    a_steps: int = 2000
+    a_identities: int = 4  # identities per batch (all see the same poses: contrastive positives)
+    a_poses: int = 6  # single poses per identity per batch (+ a combo with components + variants)
+    a_enc_points: int = 2048  # SDF samples fed to the encoder per state (subset of K)
+    a_query_points: int = 512  # SDF decoder queries per state
+    a_lr: float = 5e-4
+    # phase B
+    b_steps: int = 2000
+    b_batch: int = 4  # pairs per step
+    b_vertices: int = 0  # 0 = full meshes; else a random vertex subset (neighbourhoods from the full mesh)
+    b_lr: float = 1e-3
+    b_kinds: tuple[str, ...] = ("neutral_to_pose", "skinning_to_skinning_plus_blendshape",
+                                "blendshape_to_skinning_plus_blendshape", "source_to_combo")
+    checkpoint_every: int = 250
+    log_every: int = 10
+    grad_clip: float = 1.0
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    corpus: CorpusConfig
+    model: ModelConfig
+    train: TrainConfig
+    loss: LossWeights = field(default_factory=LossWeights)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "Preset":
+        def tup(x):
+            return {k: tuple(v) if isinstance(v, list) else v for k, v in x.items()}
+
+        return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), ModelConfig(**tup(d["model"])),
+                      TrainConfig(**tup(d["train"])), LossWeights(**d["loss"]))
+
+
+def preset(name: str) -> Preset:
+    """Corpus + model + training config of a named preset."""
+    corpus = corpus_preset(name)
+    n_train = corpus.n_identities - corpus.n_test
+    n_poses = len(corpus.pose_names())
+    if name == "tiny":
+        model = ModelConfig(latent=32, enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64,
+                            sdf_layers=4, n_identities=n_train, n_poses=n_poses, vd_hidden=16, vd_cond=32,
+                            vd_bones=4, vd_knn=6, vd_edge=8)
+        train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
+                            b_steps=20, b_batch=2, b_vertices=2048, checkpoint_every=10, log_every=5)
+        return Preset(name, corpus, model, train)
+    if name == "standard":
+        model = ModelConfig(n_identities=n_train, n_poses=n_poses)
+        train = TrainConfig()
+        return Preset(name, corpus, model, train)
+    if name == "paper":
+        model = ModelConfig(enc_hidden=(256, 512), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
+                            n_identities=n_train, n_poses=n_poses, vd_hidden=128, vd_cond=256, vd_bones=32, vd_knn=12, vd_edge=64)
+        train = TrainConfig(a_steps=20000, a_identities=8, a_poses=8, a_enc_points=8192, a_query_points=2048,
+                            b_steps=20000, b_batch=8)
+        return Preset(name, corpus, model, train)
+    raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")

@@ -46,8 +46,8 @@ class Rig:
     exists (the first construction on a machine builds it, ~40-60 s)."""
 
     def __init__(self) -> None:
-        torch.set_grad_enabled(False)
-        self.model = _anny_model()
+        with torch.no_grad():
+            self.model = _anny_model()
         m = self.model
         self.bone_labels: list[str] = list(m.bone_labels)
         self.bone_index = {b: i for i, b in enumerate(self.bone_labels)}
@@ -69,7 +69,8 @@ class Rig:
         unknown = [k for k in local_changes if k not in self.local_change_labels]
         if unknown:
             raise ValueError(f"unknown anny local changes {unknown}")
-        out = self.model(phenotype_kwargs=dict(phenotypes), local_changes_kwargs=dict(local_changes))
+        with torch.no_grad():
+            out = self.model(phenotype_kwargs=dict(phenotypes), local_changes_kwargs=dict(local_changes))
         return RestShape(out["rest_vertices"][0].numpy().astype(np.float64),
                          out["rest_bone_heads"][0].numpy().astype(np.float64))
 
@@ -87,7 +88,8 @@ class Rig:
         base = self.base_rest.vertices
         out = {}
         for unit in self.facial_labels:
-            posed = self.model(facial_actions={unit: 1.0})["rest_vertices"][0].numpy()
+            with torch.no_grad():
+                posed = self.model(facial_actions={unit: 1.0})["rest_vertices"][0].numpy()
             out[unit] = posed - base
         return out
 

@@ -1,0 +1,1 @@
+"""Networks of LatentReRig: SDF set encoder, SDF decoder, heads, vertex decoder, losses."""

@@ -1,0 +1,95 @@
+"""Learning objectives (paper, "Learning Objectives"). Each returns a scalar tensor."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from latent_model.nn.vertex_decoder import gather_neighbours
+
+STATIC_THRESHOLD = 0.001  # metres: a vertex whose true displacement is below this is "static"
+
+
+# ----------------------------------------------------------------------------- L_SDF
+def sdf_reconstruction(s_hat: torch.Tensor, s: torch.Tensor, clamp: float) -> torch.Tensor:
+    """DeepSDF clamped L1: errors far from the surface (|s| > clamp) do not dominate."""
+    return (s_hat.clamp(-clamp, clamp) - s.clamp(-clamp, clamp)).abs().mean()
+
+
+def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+    """The paper's mean form: -1/2 mean(1 + log s^2 - mu^2 - s^2)."""
+    return -0.5 * torch.mean(1.0 + logvar - mu.pow(2) - logvar.exp())
+
+
+# ----------------------------------------------------------------------------- L_latent
+def composition(total: torch.Tensor, parts: torch.Tensor) -> torch.Tensor:
+    """Relative squared error of additivity: total (N, Z) ~ parts (N, Z) (a sum of deltas)."""
+    if total.numel() == 0:
+        return total.new_zeros(())
+    num = (total - parts).pow(2).sum(-1)
+    den = total.pow(2).sum(-1) + parts.pow(2).sum(-1) + 1e-8
+    return (num / den).mean()
+
+
+def contrastive(deltas: torch.Tensor, labels: torch.Tensor, temperature: float) -> torch.Tensor:
+    """Supervised InfoNCE on normalised deltas (N, Z): same pose aligns, different poses separate."""
+    n = deltas.shape[0]
+    if n < 2:
+        return deltas.new_zeros(())
+    z = F.normalize(deltas, dim=-1)
+    sim = z @ z.T / temperature
+    eye = torch.eye(n, dtype=torch.bool, device=z.device)
+    sim = sim.masked_fill(eye, -1e9)
+    pos = (labels[:, None] == labels[None, :]) & ~eye
+    has = pos.any(dim=1)
+    if not has.any():
+        return deltas.new_zeros(())
+    logp = sim - torch.logsumexp(sim, dim=1, keepdim=True)
+    return -(logp * pos).sum(1)[has].div(pos.sum(1)[has]).mean()
+
+
+# ----------------------------------------------------------------------------- L_vertex
+def vertex_normals_torch(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """(B, V, 3), faces (F, 3) -> unit area-weighted vertex normals (B, V, 3), differentiable."""
+    a, b, c = v[:, faces[:, 0]], v[:, faces[:, 1]], v[:, faces[:, 2]]
+    fn = torch.cross(b - a, c - a, dim=-1)
+    n = torch.zeros_like(v)
+    for k in range(3):
+        n = n.index_add(1, faces[:, k], fn)
+    return F.normalize(n, dim=-1, eps=1e-12)
+
+
+def vertex_losses(pred: torch.Tensor, src: torch.Tensor, tgt: torch.Tensor, knn: torch.Tensor,
+                  faces: torch.Tensor | None, weights, corrective: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """All vertex terms (unweighted) for pred/src/tgt (B, V, 3), knn (B, V, K).
+
+    `corrective` (B, V, 3): V_skin+bs - V_skin of corrective pairs (zeros elsewhere) for L_skinBS.
+    """
+    out: dict[str, torch.Tensor] = {}
+    d_hat, d = pred - src, tgt - src
+    out["pos"] = (pred - tgt).norm(dim=-1).mean()
+    e_hat = gather_neighbours(pred, knn) - pred[:, :, None]
+    e = gather_neighbours(tgt, knn) - tgt[:, :, None]
+    out["knn"] = (e_hat.norm(dim=-1) - e.norm(dim=-1)).abs().mean()
+    de_hat = gather_neighbours(d_hat, knn) - d_hat[:, :, None]
+    de = gather_neighbours(d, knn) - d[:, :, None]
+    out["knn_delta"] = (de_hat - de).norm(dim=-1).mean()
+    static = (d.norm(dim=-1) < STATIC_THRESHOLD).float()
+    out["static"] = (d_hat.norm(dim=-1) * static).sum() / static.sum().clamp(min=1.0)
+    lap_hat = d_hat - gather_neighbours(d_hat, knn).mean(dim=2)
+    lap = d - gather_neighbours(d, knn).mean(dim=2)
+    out["smooth"] = (lap_hat - lap).norm(dim=-1).mean()
+    if faces is not None and weights.nrm > 0:
+        out["nrm"] = (1.0 - (vertex_normals_torch(pred, faces) * vertex_normals_torch(tgt, faces)).sum(-1)).mean()
+    if corrective is not None and weights.skinbs > 0:
+        w = corrective.norm(dim=-1)
+        out["skinbs"] = ((d_hat - d).norm(dim=-1) * w).sum() / w.sum().clamp(min=1e-6)
+    return out
+
+
+def weighted_sum(terms: dict[str, torch.Tensor], weights) -> torch.Tensor:
+    total = None
+    for name, value in terms.items():
+        w = getattr(weights, name)
+        if w:
+            total = value * w if total is None else total + value * w
+    return total if total is not None else next(iter(terms.values())) * 0.0

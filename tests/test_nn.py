@@ -1,0 +1,111 @@
+"""Networks: shapes, any topology, SDF overfitting, checkpoints."""
+import numpy as np
+import pytest
+import torch
+
+from latent_model.config import preset
+from latent_model.nn.model import LatentReRig
+from latent_model.nn.vertex_decoder import knn_graph
+from latent_model.train.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    torch.manual_seed(0)
+    p = preset("tiny")
+    return p, LatentReRig(p.model)
+
+
+def test_encoder_shapes_and_count_invariance(tiny):
+    p, m = tiny
+    pts, vals = torch.randn(3, 500, 3) * 0.3, torch.randn(3, 500) * 0.05
+    mu, logvar = m.encoder(pts, vals)
+    assert mu.shape == (3, p.model.latent) and logvar.shape == (3, p.model.latent)
+    # attention pooling is a weighted mean: duplicating every sample leaves mu unchanged
+    mu2, _ = m.encoder(torch.cat([pts, pts], 1), torch.cat([vals, vals], 1))
+    assert torch.allclose(mu, mu2, atol=1e-5)
+    # and it is permutation invariant
+    perm = torch.randperm(500)
+    assert torch.allclose(mu, m.encoder(pts[:, perm], vals[:, perm])[0], atol=1e-5)
+
+
+def test_default_latent_is_512():
+    assert preset("standard").model.latent == 512 and preset("paper").model.latent == 512
+
+
+@pytest.mark.parametrize("n_vertices", [700, 2345])
+def test_vertex_decoder_any_topology(tiny, n_vertices):
+    p, m = tiny
+    v = torch.randn(2, n_vertices, 3) * 0.3
+    n = torch.nn.functional.normalize(torch.randn(2, n_vertices, 3), dim=-1)
+    knn = torch.from_numpy(np.stack([knn_graph(x.numpy(), p.model.vd_knn) for x in v]))
+    Z = p.model.latent
+    out = m.vertex_decoder(v, n, torch.randn(2, Z), torch.randn(2, Z), torch.tensor([0.5, 1.0]),
+                           torch.tensor([0, 1]), knn)
+    assert out["vertices"].shape == (2, n_vertices, 3)
+    assert out["mask"].shape == (2, n_vertices, 1)
+    assert torch.isfinite(out["vertices"]).all()
+    # no parameter is sized by the vertex count
+    assert all(n_vertices not in prm.shape for prm in m.vertex_decoder.parameters())
+
+
+def test_sdf_decoder_overfits_a_few_shapes(tiny_corpus):
+    from latent_model.nn import losses
+
+    torch.manual_seed(0)
+    p = preset("tiny")
+    m = LatentReRig(p.model)
+    c = tiny_corpus
+    states = [c.state(0, None, "neutral"), c.state(1, "elbowBentLf", "skinning_plus_blendshape"),
+              c.state(2, "cornerUpLf", "skinning_plus_blendshape")]
+    pts = torch.from_numpy(np.stack([c.sdf(s)[0] for s in states])).float()
+    vals = torch.from_numpy(np.stack([c.sdf(s)[1] for s in states])).float()
+    params = list(m.encoder.parameters()) + list(m.sdf_decoder.parameters())
+    opt = torch.optim.Adam(params, lr=3e-3)
+
+    def loss_now():
+        mu, _ = m.encoder(pts, vals)
+        return losses.sdf_reconstruction(m.sdf_decoder(mu, pts), vals, p.model.sdf_clamp)
+
+    with torch.no_grad():
+        first = loss_now().item()
+    for _ in range(600):
+        opt.zero_grad()
+        loss = loss_now()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        last = loss_now().item()
+    assert last < first / 4, f"SDF loss fell only from {first:.4f} to {last:.4f}"
+
+
+def test_checkpoint_round_trip_is_exact(tiny, tmp_path):
+    p, m = tiny
+    path = tmp_path / "m.safetensors"
+    save_checkpoint(path, m, p, "a", 7)
+    m2, stored, meta = load_checkpoint(path)
+    assert stored == p and meta["step"] == "7"
+    sd1, sd2 = m.state_dict(), m2.state_dict()
+    assert sd1.keys() == sd2.keys()
+    assert all(torch.equal(sd1[k], sd2[k]) for k in sd1)
+
+
+def test_corrupt_and_mismatched_checkpoints_fail_clearly(tiny, tmp_path):
+    p, m = tiny
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"this is not a checkpoint")
+    with pytest.raises(CheckpointError, match="corrupt"):
+        load_checkpoint(bad)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "missing.safetensors")
+    good = tmp_path / "tiny.safetensors"
+    save_checkpoint(good, m, p, "a", 1)
+    with pytest.raises(CheckpointError, match="preset 'tiny'"):
+        load_checkpoint(good, expect=preset("standard"))
+    with pytest.raises(CheckpointError, match="does not fit"):
+        load_checkpoint(good, model=LatentReRig(preset("standard").model))
+    # a file cut short (e.g. a copy interrupted) is reported, not crashed on
+    cut = tmp_path / "cut.safetensors"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(CheckpointError):
+        load_checkpoint(cut)
