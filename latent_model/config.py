@@ -11,6 +11,9 @@ from pathlib import Path
 from latent_model.corpus.sdf import SdfSampling
 
 PRESETS = ("tiny", "standard", "paper")
+# Bump when the geometry a config produces changes (rig, correctives, faces, sampling code):
+# it enters the corpus digest, so stale corpora are detected instead of silently reused.
+GENERATOR_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -38,7 +41,7 @@ class CorpusConfig:
 
     def digest(self) -> str:
         """Short hash of the config, stored in the corpus to detect a mismatch."""
-        blob = json.dumps(self.to_dict(), sort_keys=True).encode()
+        blob = json.dumps({"config": self.to_dict(), "generator": GENERATOR_VERSION}, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
     def pose_names(self) -> tuple[str, ...]:

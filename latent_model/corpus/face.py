@@ -63,7 +63,14 @@ class FaceCarrier:
         scale = np.einsum("skc,skc->s", E_b, E_b)[:, None, None] / _JACOBIAN_K
         lhs = np.einsum("ski,skj->sij", E_b, E_b) + _RIDGE * scale * np.eye(3)
         rhs = np.einsum("ski,skj->sij", E_b, E_r) + _RIDGE * scale * np.eye(3)
-        return np.linalg.solve(lhs, rhs).transpose(0, 2, 1)
+        J = np.linalg.solve(lhs, rhs).transpose(0, 2, 1)
+        # Robustness: a badly conditioned patch (inner mouth, eyelid folds) must not amplify a
+        # shape; keep each map's rotation and clip its stretches to a band around its mean scale.
+        U, S, Vt = np.linalg.svd(J)
+        scale = np.exp(np.log(np.clip(S, 1e-6, None)).mean(axis=1, keepdims=True))
+        scale = np.clip(scale, 0.6, 1.6)  # local size change vs the base mesh
+        S = np.clip(S, 0.8 * scale, 1.25 * scale)
+        return np.einsum("sij,sj,sjk->sik", U, S, Vt)
 
     def offsets(self, rest_vertices: np.ndarray, face: tuple[FaceWeight, ...], style: FaceStyle) -> np.ndarray:
         """(V, 3) rest-space facial offsets of a pose's blendshape part on this identity."""

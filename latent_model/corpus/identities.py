@@ -85,10 +85,10 @@ def _sample_local_changes(rng: np.random.Generator, labels: list[str], n: int) -
 
 def _face_style(rng: np.random.Generator) -> FaceStyle:
     return FaceStyle(
-        intensity=round(float(rng.uniform(0.65, 1.35)), 3),
+        intensity=round(float(rng.uniform(0.75, 1.25)), 3),
         spread=round(float(rng.uniform(-0.6, 1.0)), 3),
         asymmetry=round(float(rng.uniform(-0.2, 0.2)), 3),
-        wave=(round(float(rng.uniform(0.15, 0.35)), 3), round(float(rng.uniform(0.05, 0.10)), 3),
+        wave=(round(float(rng.uniform(0.10, 0.25)), 3), round(float(rng.uniform(0.05, 0.10)), 3),
               round(float(rng.uniform(0, np.pi)), 3), round(float(rng.uniform(0, 2 * np.pi)), 3)),
     )
 

@@ -53,7 +53,7 @@ def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None
             if pose != "neutral":
                 values = np.linalg.norm(v - neutral, axis=1) * 1000
             view = "side" if pose.startswith(("knee", "hip")) else "front"
-            draw_mesh(ax, v, corpus.faces, view, values=values, cmap="inferno", vmin=0,
+            draw_mesh(ax, v, corpus.faces, view, values=values, cmap="YlOrRd", vmin=0,
                       vmax=20 if values is not None else None)
             _crop(ax, v, pose)
             if r == 0:
