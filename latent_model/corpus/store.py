@@ -256,7 +256,7 @@ class Corpus:
     # ------------------------------------------------------------------ arrays
     def vertices(self, s: int) -> np.ndarray:
         """(V, 3) float32."""
-        return np.asarray(self._arrays["vertices"][self.row(s)])
+        return np.array(self._arrays["vertices"][self.row(s)])
 
     def normals(self, s: int) -> np.ndarray:
         """(V, 3) float32."""
@@ -265,7 +265,7 @@ class Corpus:
     def sdf(self, s: int) -> tuple[np.ndarray, np.ndarray]:
         """Stored SDF samples: points (K, 3), values (K,)."""
         r = self.row(s)
-        return np.asarray(self._arrays["sdf_points"][r]), np.asarray(self._arrays["sdf_values"][r])
+        return np.array(self._arrays["sdf_points"][r]), np.array(self._arrays["sdf_values"][r])
 
     def resample_sdf(self, s: int, resample: int, k: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """An independent seeded re-sampling of state `s`'s geometry (resample >= 1; 0 = stored)."""
