@@ -167,3 +167,35 @@ def test_cli_info_export_and_sheet(tiny_corpus, tmp_path, capsys):
 
     img = mpimg.imread(png)
     assert img[..., :3].std() > 0.05  # something was drawn
+
+
+def test_a_killed_build_resumes_to_identical_arrays(tiny_corpus, tmp_path):
+    """SIGKILL a real `lrr corpus build` mid-way, then finish it with the same command."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "latent_model.cli", "corpus", "build", "--preset", "tiny", "--out", str(out),
+           "--workers", "1", "--quiet", "--brief"]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    progress = tmp_path / "killed.partial" / "progress.json"
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        if progress.exists() and len(json.loads(progress.read_text() or "{}").get("done", {})) >= 1:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "manifest.json").exists()
+    done_before = len(json.loads(progress.read_text())["done"])
+    assert 1 <= done_before < tiny_corpus.config.n_identities
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    again = Corpus(out)
+    for name in ("vertices", "sdf_values", "normals"):
+        assert np.array_equal(np.asarray(again.arrays[name]), np.asarray(tiny_corpus.arrays[name])), name
+    assert not (tmp_path / "killed.partial").exists()
