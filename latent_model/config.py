@@ -88,9 +88,9 @@ class ModelConfig:
 
     latent: int = 512  # Z
     enc_fourier: int = 6  # frequencies of the point positional encoding
-    enc_hidden: tuple[int, ...] = (128, 256)  # per-point MLP widths
-    enc_heads: int = 4  # attention-pooling heads (permutation invariant, count-consistent)
-    enc_out_hidden: int = 512
+    enc_hidden: tuple[int, ...] = (64, 128)  # per-point MLP widths
+    enc_heads: int = 8  # attention-pooling heads (permutation invariant, count-consistent)
+    enc_out_hidden: int = 1024
     sdf_hidden: int = 256
     sdf_layers: int = 6  # latent + x re-injected (skip) at the middle layer, as DeepSDF
     sdf_clamp: float = 0.05  # metres: clamp of the SDF reconstruction loss near the surface
@@ -134,9 +134,9 @@ class TrainConfig:
     # phase A
     a_steps: int = 2000
     a_identities: int = 4  # identities per batch (all see the same poses: contrastive positives)
-    a_poses: int = 6  # single poses per identity per batch (+ a combo with components + variants)
+    a_poses: int = 4  # single poses per identity per batch (+ a combo with components + variants)
     a_enc_points: int = 2048  # SDF samples fed to the encoder per state (subset of K)
-    a_query_points: int = 512  # SDF decoder queries per state
+    a_query_points: int = 256  # SDF decoder queries per state
     a_lr: float = 5e-4
     # phase B
     b_steps: int = 2000
@@ -187,7 +187,7 @@ def preset(name: str) -> Preset:
         train = TrainConfig()
         return Preset(name, corpus, model, train)
     if name == "paper":
-        model = ModelConfig(enc_hidden=(256, 512), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
+        model = ModelConfig(enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
                             n_identities=n_train, n_poses=n_poses, vd_hidden=128, vd_cond=256, vd_bones=32, vd_knn=12, vd_edge=64)
         train = TrainConfig(a_steps=20000, a_identities=8, a_poses=8, a_enc_points=8192, a_query_points=2048,
                             b_steps=20000, b_batch=8)

@@ -27,7 +27,6 @@ class SdfSetEncoder(nn.Module):
         self.point = mlp(widths, final_act=True)
         h = widths[-1]
         self.score = nn.Linear(h, cfg.enc_heads)
-        self.value = nn.Linear(h, h)
         self.out = mlp([h * cfg.enc_heads, cfg.enc_out_hidden, 2 * cfg.latent])
 
     def forward(self, points: torch.Tensor, values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -35,7 +34,7 @@ class SdfSetEncoder(nn.Module):
         s = (values * SDF_INPUT_SCALE).clamp(-SDF_INPUT_CLIP, SDF_INPUT_CLIP)[..., None]
         f = self.point(torch.cat([fourier_features(points, self.cfg.enc_fourier), s], dim=-1))  # (B, K, H)
         w = torch.softmax(self.score(f), dim=1)  # (B, K, heads)
-        pooled = torch.einsum("bkh,bkc->bhc", w, self.value(f)).flatten(1)  # (B, heads*H)
+        pooled = torch.einsum("bkh,bkc->bhc", w, f).flatten(1)  # (B, heads*H)
         mu, logvar = self.out(pooled).chunk(2, dim=-1)
         return mu, logvar.clamp(-12.0, 6.0)
 

@@ -63,8 +63,7 @@ class EdgeStage(nn.Module):
         super().__init__()
         self.self_proj = nn.Linear(h, e)
         self.nbr_proj = nn.Linear(h, e, bias=False)
-        self.rel_x = nn.Linear(3, e, bias=False)
-        self.rel_d = nn.Linear(3, e, bias=False)
+        self.rel = nn.Linear(6, e, bias=False)  # on [x_j - x_i, d_j - d_i]
         self.update = mlp([e, h, h])
 
     def forward(self, g: torch.Tensor, d: torch.Tensor, rel_x: torch.Tensor, knn: torch.Tensor) -> torch.Tensor:
@@ -72,7 +71,8 @@ class EdgeStage(nn.Module):
         nbr = self.nbr_proj(g)
         own = (self.self_proj(g) - nbr)[:, :, None]
         rel_d = (gather_neighbours(d, knn) - d[:, :, None]) * POS_SCALE
-        e = own + gather_neighbours(nbr, knn) + self.rel_x(rel_x) + self.rel_d(rel_d)
+        e = gather_neighbours(nbr, knn) + self.rel(torch.cat([rel_x, rel_d], dim=-1))
+        e += own
         return g + self.update(torch.nn.functional.silu(e).amax(dim=2))
 
 
