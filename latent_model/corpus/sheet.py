@@ -13,7 +13,7 @@ DEFAULT_SHEET_POSES = ("neutral", "elbowSuperBentLf", "kneeBentLf", "shoulderRai
                        "browDwLf+browDwRt", "cornerUpLf", "jawOpen", "puffLf")
 
 
-def _crop(ax, v: np.ndarray, pose: str) -> None:
+def _crop(ax, v: np.ndarray, pose: str, neutral: np.ndarray) -> None:
     """Zoom facial poses on the head and finger poses on the hand, so the shape is visible."""
     if pose == "neutral":
         return
@@ -22,12 +22,11 @@ def _crop(ax, v: np.ndarray, pose: str) -> None:
         top = v[:, 2].max()
         ax.set_xlim(-0.11, 0.11)
         ax.set_ylim(top - 0.27, top + 0.01)
-    elif p.group == "finger" or pose.startswith("fist"):
-        side = 1.0 if pose.endswith("Lf") else -1.0
-        hand = v[v[:, 0] * side > 0.38] if (v[:, 0] * side > 0.38).any() else v
-        c = hand.mean(axis=0)
-        ax.set_xlim(c[0] - 0.12, c[0] + 0.12)
-        ax.set_ylim(c[2] - 0.14, c[2] + 0.10)
+    elif p.group == "finger":
+        moved = np.linalg.norm(v - neutral, axis=1) > 0.002  # centre on what the pose moves
+        c = v[moved].mean(axis=0) if moved.any() else v.mean(axis=0)
+        ax.set_xlim(c[0] - 0.11, c[0] + 0.11)
+        ax.set_ylim(c[2] - 0.12, c[2] + 0.10)
 
 
 def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None,
@@ -55,7 +54,7 @@ def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None
             view = "side" if pose.startswith(("knee", "hip")) else "front"
             draw_mesh(ax, v, corpus.faces, view, values=values, cmap="YlOrRd", vmin=0,
                       vmax=20 if values is not None else None)
-            _crop(ax, v, pose)
+            _crop(ax, v, pose, neutral)
             if r == 0:
                 ax.set_title(pose, fontsize=8)
             if c == 0:
