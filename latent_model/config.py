@@ -111,12 +111,12 @@ class ModelConfig:
 class LossWeights:
     """Every loss weight; 0 switches a term off (ablations)."""
 
-    rec: float = 1.0
-    cls: float = 0.05
-    pose_cls: float = 0.05
+    rec: float = 30.0  # the SDF error is in metres (~1 cm): weighted up so geometry drives the code
+    cls: float = 0.1
+    pose_cls: float = 0.1
     kl: float = 1e-4
-    variant: float = 0.5
-    combo: float = 0.5
+    variant: float = 0.2
+    combo: float = 0.2
     contrast: float = 0.1
     contrast_temperature: float = 0.1
     pos: float = 1.0
@@ -184,7 +184,8 @@ def preset(name: str) -> Preset:
         return Preset(name, corpus, model, train)
     if name == "standard":
         model = ModelConfig(n_identities=n_train, n_poses=n_poses)
-        train = TrainConfig()
+        # sized for <= 90 min on 2 CPU cores (bench/bench_train.py): A ~0.3 s/step, B ~1.2 s/step
+        train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=1500)
         return Preset(name, corpus, model, train)
     if name == "paper":
         model = ModelConfig(enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,

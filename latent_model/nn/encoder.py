@@ -28,6 +28,10 @@ class SdfSetEncoder(nn.Module):
         h = widths[-1]
         self.score = nn.Linear(h, cfg.enc_heads)
         self.out = mlp([h * cfg.enc_heads, cfg.enc_out_hidden, 2 * cfg.latent])
+        # Start with a narrow posterior (sigma ~ 0.05): with sigma ~ 1 the sampled z drowns mu
+        # and the SDF decoder learns to ignore the code (posterior collapse).
+        with torch.no_grad():
+            self.out[-1].bias[cfg.latent:] = -6.0
 
     def forward(self, points: torch.Tensor, values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """points (B, K, 3), values (B, K) -> mu (B, Z), logvar (B, Z)."""

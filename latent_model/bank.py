@@ -1,0 +1,180 @@
+"""The latent bank: frozen-encoder means of the training states, standardisation statistics and
+pose deltas per (pair kind, pose, training identity). Computed once, saved, reused by the
+Transfer API, the evaluation and the explorer.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.numpy import load_file, save_file
+
+from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
+from latent_model.corpus.store import Corpus
+
+BANK_FORMAT = 1
+
+
+class BankError(RuntimeError):
+    pass
+
+
+@dataclass
+class LatentBank:
+    """mu (N, Z) of training states; `keys[i]` = "ID/POSE/VARIANT"; standardisation mean/scale (Z,);
+    deltas[(kind, pose)] = (identity ids, (n, Z) raw deltas mu_target - mu_source)."""
+
+    mu: np.ndarray
+    keys: list[str]
+    mean: np.ndarray
+    scale: np.ndarray
+    deltas: dict[tuple[str, str], tuple[list[str], np.ndarray]]
+    sources: dict[tuple[str, str], np.ndarray]  # (kind, pose) -> (n, Z) source means (for nearest identity)
+    model_digest: str
+
+    def standardise(self, mu: np.ndarray) -> np.ndarray:
+        return (mu - self.mean) / self.scale
+
+    def poses(self, kind: str = "neutral_to_pose") -> list[str]:
+        return [p for k, p in self.deltas if k == kind]
+
+    def delta(self, kind: str, pose: str) -> tuple[list[str], np.ndarray]:
+        try:
+            return self.deltas[(kind, pose)]
+        except KeyError:
+            valid = ", ".join(self.poses(kind)) or "(none)"
+            raise KeyError(f"no {kind} delta for pose {pose!r} in the latent bank; poses: {valid}") from None
+
+    def mean_delta(self, kind: str, pose: str) -> np.ndarray:
+        """Delta averaged over training identities (the paper's mean_pose_delta)."""
+        return self.delta(kind, pose)[1].mean(axis=0)
+
+    def nearest_identity(self, kind: str, pose: str, mu_source: np.ndarray) -> tuple[str, np.ndarray]:
+        """(identity, its delta) of the training identity whose source state is nearest to
+        `mu_source` in standardised latent space (nearest_identity_delta)."""
+        ids, d = self.delta(kind, pose)
+        src = self.standardise(self.sources[(kind, pose)])
+        dist = np.linalg.norm(src - self.standardise(mu_source)[None], axis=1)
+        k = int(np.argmin(dist))
+        return ids[k], d[k]
+
+    def identity_delta(self, kind: str, pose: str, identity: str) -> np.ndarray:
+        ids, d = self.delta(kind, pose)
+        if identity not in ids:
+            raise KeyError(f"identity {identity!r} is not a training identity of the bank; valid: {', '.join(ids)}")
+        return d[ids.index(identity)]
+
+    # ------------------------------------------------------------------ io
+    def save(self, path: Path) -> None:
+        import os
+        import tempfile
+
+        tensors = {"mu": self.mu.astype(np.float32), "mean": self.mean.astype(np.float32),
+                   "scale": self.scale.astype(np.float32)}
+        index = []
+        for n, ((kind, pose), (ids, d)) in enumerate(self.deltas.items()):
+            tensors[f"delta{n}"] = d.astype(np.float32)
+            tensors[f"source{n}"] = self.sources[(kind, pose)].astype(np.float32)
+            index.append({"kind": kind, "pose": pose, "ids": ids})
+        meta = {"format": str(BANK_FORMAT), "keys": json.dumps(self.keys), "index": json.dumps(index),
+                "model_digest": self.model_digest}
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        os.close(fd)
+        try:
+            save_file(tensors, tmp, metadata=meta)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    @staticmethod
+    def load(path: Path) -> "LatentBank":
+        from safetensors import safe_open
+
+        path = Path(path)
+        if not path.exists():
+            raise BankError(f"latent bank {path} does not exist; build it with `lrr bank --checkpoint ...`")
+        try:
+            with safe_open(str(path), framework="np") as f:
+                meta = f.metadata() or {}
+            t = load_file(str(path))
+        except Exception as e:  # noqa: BLE001 - any unreadable file is reported the same way
+            raise BankError(f"latent bank {path} is corrupt ({e}); rebuild it with `lrr bank`") from e
+        if meta.get("format") != str(BANK_FORMAT):
+            raise BankError(f"latent bank {path} has format {meta.get('format')}, expected {BANK_FORMAT}; rebuild it")
+        index = json.loads(meta["index"])
+        deltas = {(e["kind"], e["pose"]): (e["ids"], t[f"delta{n}"]) for n, e in enumerate(index)}
+        sources = {(e["kind"], e["pose"]): t[f"source{n}"] for n, e in enumerate(index)}
+        return LatentBank(t["mu"], json.loads(meta["keys"]), t["mean"], t["scale"], deltas, sources,
+                          meta.get("model_digest", ""))
+
+
+def model_digest(model: torch.nn.Module) -> str:
+    """Hash of the encoder weights: a bank belongs to one encoder."""
+    h = hashlib.sha256()
+    for k, v in sorted(model.encoder.state_dict().items()):
+        h.update(k.encode())
+        h.update(v.detach().cpu().numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+@torch.no_grad()
+def encode_states(model, corpus: Corpus, states: list[int], device: torch.device | None = None,
+                  resample: int = 0, progress: bool = False) -> np.ndarray:
+    """Posterior means (n, Z) of corpus states (stored samples, or an independent re-sampling)."""
+    from tqdm import tqdm
+
+    device = device or torch.device("cpu")
+    out = []
+    chunk = 32
+    for i in tqdm(range(0, len(states), chunk), disable=not progress, desc="encoding", unit="batch"):
+        batch = [corpus.resample_sdf(s, resample) for s in states[i:i + chunk]]
+        p = torch.from_numpy(np.stack([b[0] for b in batch])).float().to(device)
+        v = torch.from_numpy(np.stack([b[1] for b in batch])).float().to(device)
+        out.append(model.encode_mu(p, v).cpu().numpy())
+    return np.concatenate(out) if out else np.zeros((0, model.cfg.latent), np.float32)
+
+
+def build_bank(model, corpus: Corpus, device: torch.device | None = None, progress: bool = True) -> LatentBank:
+    """Encode every training state once and tabulate deltas for every pair kind and pose."""
+    train = corpus.split_indices("train")
+    states = [s for s in range(len(corpus.states)) if int(corpus.states[s, 0]) in set(train)]
+    # one encoding per geometry row (face-only poses share rows)
+    rows = sorted({corpus.row(s) for s in states})
+    row_state = {}
+    for s in states:
+        row_state.setdefault(corpus.row(s), s)
+    mu_rows = encode_states(model, corpus, [row_state[r] for r in rows], device, progress=progress)
+    mu_of_row = {r: mu_rows[k] for k, r in enumerate(rows)}
+    mu = np.stack([mu_of_row[corpus.row(s)] for s in states])
+    keys = [corpus.state_name(s) for s in states]
+    mean = mu.mean(axis=0)
+    scale = mu.std(axis=0) + 1e-6
+    deltas: dict = {}
+    sources: dict = {}
+    pairs = enumerate_pairs(train, corpus.poses, PAIR_KINDS)
+    grouped: dict[tuple[str, str], list] = {}
+    for p in pairs:
+        if p.kind == "source_to_combo":  # one delta per (combo, component): key the component in
+            key = (p.kind, f"{p.pose}<{p.source[0]}")
+        else:
+            key = (p.kind, p.pose)
+        grouped.setdefault(key, []).append(p)
+    for key, ps in grouped.items():
+        ids, d, src = [], [], []
+        for p in ps:
+            s_src = corpus.state(p.identity, p.source[0], p.source[1])
+            s_tgt = corpus.state(p.identity, p.target[0], p.target[1])
+            m_src, m_tgt = mu_of_row[corpus.row(s_src)], mu_of_row[corpus.row(s_tgt)]
+            ids.append(corpus.identities[p.identity].id)
+            d.append(m_tgt - m_src)
+            src.append(m_src)
+        deltas[key] = (ids, np.stack(d))
+        sources[key] = np.stack(src)
+    return LatentBank(mu, keys, mean, scale, deltas, sources, model_digest(model))
