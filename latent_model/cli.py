@@ -206,6 +206,21 @@ def cmd_train(args) -> None:
         print(f"done in {time.perf_counter() - t:.1f} s; model: {final}; logs and loss curves in {run_dir}")
 
 
+def cmd_bank(args) -> None:
+    from latent_model.bank import build_bank
+    from latent_model.corpus.store import Corpus
+    from latent_model.train.checkpoint import load_checkpoint
+    from latent_model.train.loop import select_device
+
+    model, p, _ = load_checkpoint(Path(args.checkpoint))
+    corpus = Corpus(Path(args.corpus) if args.corpus else default_corpus_dir(p.name))
+    device = select_device()
+    bank = build_bank(model.to(device).eval(), corpus, device, progress=not args.quiet)
+    out = Path(args.out)
+    bank.save(out)
+    print(f"latent bank of {len(bank.keys)} training states, {len(bank.deltas)} (pair kind, pose) deltas -> {out}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lrr", description="LatentReRig: corpus, training, evaluation, prediction")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -260,18 +275,26 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--fresh", action="store_true", help="ignore resume state and start the phase(s) over")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.set_defaults(func=cmd_train)
+
+    bk = sub.add_parser("bank", help="encode the training states once: standardisation + deltas per pose and pair kind")
+    bk.add_argument("--checkpoint", required=True, help="trained model (safetensors)")
+    bk.add_argument("--corpus", help="corpus directory (default: the checkpoint preset's)")
+    bk.add_argument("-o", "--out", required=True, help="output .safetensors")
+    bk.add_argument("--quiet", action="store_true")
+    bk.set_defaults(func=cmd_bank)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     from latent_model.corpus.poses import UnknownPoseError
     from latent_model.corpus.store import CorpusError
+    from latent_model.bank import BankError
     from latent_model.train.checkpoint import CheckpointError
 
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (UserError, CorpusError, CheckpointError, UnknownPoseError, ValueError) as e:
+    except (UserError, CorpusError, CheckpointError, BankError, UnknownPoseError, ValueError) as e:
         print(f"lrr: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
