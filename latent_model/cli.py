@@ -282,6 +282,18 @@ def build_parser() -> argparse.ArgumentParser:
     bk.add_argument("-o", "--out", required=True, help="output .safetensors")
     bk.add_argument("--quiet", action="store_true")
     bk.set_defaults(func=cmd_bank)
+
+    # evaluation and prediction live in their own modules (argument lists included)
+    from latent_model.analysis import report
+    from latent_model import predict
+
+    ev = sub.add_parser("evaluate", help="the paper's analyses + baselines on held-out identities -> markdown, PNG, metrics.json")
+    report.add_arguments(ev)
+    ev.set_defaults(func=report.run_cli)
+
+    pr = sub.add_parser("predict", help="deform your own mesh file with a pose (the Transfer API)")
+    predict.add_arguments(pr)
+    pr.set_defaults(func=predict.run_cli)
     return ap
 
 

@@ -96,7 +96,7 @@ class ModelConfig:
     sdf_clamp: float = 0.05  # metres: clamp of the SDF reconstruction loss near the surface
     n_identities: int = 64  # training identities (character classifier classes)
     n_poses: int = 81  # pose classifier classes
-    vd_fourier: int = 4
+    vd_fourier: int = 7  # down to ~3 cm wavelengths: sharp enough to tell forearm from upper arm
     vd_hidden: int = 64
     vd_cond: int = 128
     vd_bones: int = 16  # virtual bones of the coarse stage

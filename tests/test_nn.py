@@ -109,3 +109,32 @@ def test_corrupt_and_mismatched_checkpoints_fail_clearly(tiny, tmp_path):
     cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
     with pytest.raises(CheckpointError):
         load_checkpoint(cut)
+
+
+def test_vertex_decoder_learns_several_pairs_at_once(tiny_corpus):
+    """A batch of different poses (large limb motion and near-static face poses) must be learnt
+    together. Guards the failure where a median-seeking loss kept the decoder at 'no motion'."""
+    from latent_model.nn import losses
+    from latent_model.train.data import PhaseBSampler
+    from latent_model.train.phases import PhaseBNet
+
+    torch.manual_seed(0)
+    p = preset("tiny")
+    m = LatentReRig(p.model)
+    c = tiny_corpus
+    sampler = PhaseBSampler(c, p, 0, identities=[0])
+    pairs = [q for q in sampler.by_kind["neutral_to_pose"] if q.pose in c.poses][:4]
+    assert len({q.pose for q in pairs}) == 4
+    b = sampler.collate(pairs)
+    mu_rows = torch.randn(c.manifest["n_geometries"], p.model.latent)  # stand-in latents, distinct per state
+    net = PhaseBNet(m, p, c.faces, mu_rows)
+    opt = torch.optim.Adam(m.vertex_decoder.parameters(), lr=3e-3)
+    no_motion = losses.vertex_losses(b.v_src, b.v_src, b.v_tgt, b.knn, None, p.loss)["pos"].item()
+    for _ in range(150):
+        loss, terms = net(b)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        last = net(b)[1]["pos"].item()
+    assert last < no_motion / 3, f"vertex RMSE {last * 1000:.2f} mm vs {no_motion * 1000:.2f} mm without motion"

@@ -91,6 +91,9 @@ class VertexDecoder(nn.Module):
         nn.init.zeros_(self.bones.bias)
         self.assign = mlp([H, H, nb])
         self.mask = mlp([H, H, 1])
+        # direct per-vertex displacement (conditioned through FiLM): gives every vertex a
+        # gradient path from the first step, while the bones learn coordinated rigid motion
+        self.direct = mlp([H, H, 3])
         self.stages = nn.ModuleList(EdgeStage(H, cfg.vd_edge) for _ in range(cfg.vd_stages))
         self.stage_out = nn.ModuleList(nn.Linear(H, 3) for _ in range(cfg.vd_stages))
         for lin in self.stage_out:
@@ -124,19 +127,25 @@ class VertexDecoder(nn.Module):
         # 1) virtual-bone coarse stage
         p = self.bones(c).reshape(B, cfg.vd_bones, 12)
         R = rot6d_to_matrix(p[..., :6] + self.identity6d)  # (B, nb, 3, 3)
-        pivot, trans = p[..., 6:9], p[..., 9:12] * 0.1
         w = torch.softmax(self.assign(h), dim=-1)  # (B, V, nb)
+        # Each bone pivots about the centroid of the vertices it influences (plus a learned
+        # offset): a rotation then moves its own region, not the whole body about the origin,
+        # which keeps early training from swinging limbs by metres.
+        centroid = torch.einsum("bvn,bvi->bni", w, v_src) / (w.sum(dim=1)[..., None] + 1e-6)
+        pivot, trans = centroid + p[..., 6:9] * 0.1, p[..., 9:12] * 0.1
         local = v_src[:, :, None] - pivot[:, None]  # (B, V, nb, 3)
         moved = torch.einsum("bnij,bvnj->bvni", R, local) + pivot[:, None] + trans[:, None]
         coarse = (w[..., None] * moved).sum(dim=2) - v_src
-        # 2) per-vertex latent-delta mask
-        m = torch.sigmoid(self.mask(h))
-        d = m * coarse
+        # 2) per-vertex latent-delta mask: gates where the global (bone) signal acts. It gates
+        # only the coarse stage: gating the refinement too let the mask saturate at 0 early in
+        # training and silence the whole decoder (measured: no motion after 1500 steps).
+        m = torch.sigmoid(self.mask(h) + 2.0)
+        d = m * (coarse + self.direct(h) * 0.1)
         # 3) local KNN refinement
         g = h
         for stage, out in zip(self.stages, self.stage_out):
             g = stage(g, d, v_src, knn)
-            d = d + m * out(g) * 0.1
+            d = d + out(g) * 0.1
         # 4) residual detail branch (gated)
         if cfg.vd_detail:
             det = self.detail_out(torch.nn.functional.silu(self.detail_h(h) + self.detail_c(c)[:, None]))

@@ -64,6 +64,36 @@ def read_metadata(path: Path) -> dict:
     return meta
 
 
+def _phase_a_config(m) -> dict:
+    """The model config without the vertex decoder's fields (what Phase A depends on)."""
+    import dataclasses
+
+    return {k: v for k, v in dataclasses.asdict(m).items() if not k.startswith("vd_")}
+
+
+def load_phase_a(path: Path, model: torch.nn.Module, expect: Preset) -> None:
+    """Load only the Phase A parts (encoder, SDF decoder, heads) of a checkpoint into `model`:
+    Phase B starts from them whatever vertex decoder the checkpoint carried, so a vertex-decoder
+    change does not force re-training Phase A."""
+    meta = read_metadata(path)
+    stored = Preset.from_dict(json.loads(meta["preset"]))
+    if _phase_a_config(stored.model) != _phase_a_config(expect.model):
+        raise CheckpointError(f"Phase A checkpoint {path} was trained with another encoder/SDF config than preset "
+                              f"{expect.name!r}; re-train Phase A (lrr train phase-a --preset {expect.name} --fresh)")
+    try:
+        tensors = {k: v for k, v in load_file(str(path)).items() if not k.startswith("vertex_decoder.")}
+    except (SafetensorError, OSError, ValueError) as e:
+        raise CheckpointError(f"checkpoint {path} is corrupt ({e}); delete it and re-train") from e
+    try:
+        missing, unexpected = model.load_state_dict(tensors, strict=False)
+    except RuntimeError as e:
+        raise CheckpointError(f"checkpoint {path} does not fit the model ({str(e).splitlines()[-1].strip()})") from e
+    missing = [k for k in missing if not k.startswith("vertex_decoder.")]
+    if missing or unexpected:
+        raise CheckpointError(f"checkpoint {path} does not fit the model (missing {missing[:3]}, "
+                              f"unexpected {list(unexpected)[:3]}); it is from another version or config")
+
+
 def load_checkpoint(path: Path, model: torch.nn.Module | None = None, expect: Preset | None = None):
     """Load weights (into `model`, or a new LatentReRig built from the stored preset).
 

@@ -13,7 +13,7 @@ from latent_model.corpus.store import Corpus
 from latent_model.nn import losses
 from latent_model.nn.encoder import reparameterise
 from latent_model.nn.model import LatentReRig
-from latent_model.train.checkpoint import load_checkpoint, save_checkpoint
+from latent_model.train.checkpoint import load_phase_a, save_checkpoint
 from latent_model.train.data import PhaseABatch, PhaseASampler, PhaseBBatch, PhaseBSampler
 from latent_model.train.loop import PhaseSpec, dist_info, run_phase
 
@@ -149,7 +149,7 @@ def train(preset: Preset, corpus: Corpus, run_dir: Path, phases: str = "all", de
         train_phase_a(model, preset, corpus, run_dir, device, fresh=fresh, progress=progress)
     if phases in ("all", "b"):
         ckpt_a = run_dir / "phase_a.safetensors"
-        load_checkpoint(ckpt_a, model, expect=preset)  # Phase B always starts from the finished Phase A
+        load_phase_a(ckpt_a, model, expect=preset)  # Phase B always starts from the finished Phase A
         model.to(device)
         train_phase_b(model, preset, corpus, run_dir, device, fresh=fresh, progress=progress)
     final = run_dir / "model.safetensors"

@@ -1,0 +1,123 @@
+"""`lrr predict`: deform a user's mesh file with a pose, through the Transfer API.
+
+    lrr predict --mesh in.obj --pose elbowBentLf [--pose-b kneeBentLf --blend 0.3] \
+        --strategy nearest --magnitude 1.0 [--kind neutral_to_pose] [--up auto|y|z] \
+        [--units auto|m|cm|mm] [--checkpoint model.safetensors --bank bank.safetensors] -o out.obj
+
+The mesh is normalised into the model frame (latent_model.meshio), prepared and predicted by
+`Transfer.prepare` / `Transfer.predict`, and written back in the input's frame, units and
+vertex order (atomically: an existing output is replaced only by a complete file).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from latent_model.meshio import EXPORT_FORMATS, MeshError, UserMesh, export_mesh, load_mesh
+
+
+class PredictError(ValueError):
+    """A bad request to `lrr predict` (unknown pose, bad slider value, missing model)."""
+
+
+@dataclass
+class PredictResult:
+    mesh: UserMesh
+    vertices: np.ndarray  # (W, 3) model frame
+    label: str  # where the conditioning came from (mean / an identity id)
+    seconds_load: float
+    seconds_prepare: float
+    seconds_predict: float
+
+
+def check_pose(transfer, pose: str, kind: str) -> None:
+    """Raise PredictError listing the valid names when the bank has no delta for `pose`."""
+    from latent_model.corpus.pairs import PAIR_KINDS
+
+    if kind not in PAIR_KINDS:
+        raise PredictError(f"unknown pair kind {kind!r}; valid: {', '.join(PAIR_KINDS)}")
+    valid = transfer.bank.poses(kind)
+    if pose not in valid:
+        raise PredictError(f"unknown pose {pose!r} for pair kind {kind}. Valid poses ({len(valid)}): {', '.join(valid)}")
+
+
+def load_transfer(checkpoint: str | Path | None = None, bank: str | Path | None = None):
+    """The Transfer API on the shipped model (or the given files)."""
+    from latent_model.shipped import AssetsError, ShippedPaths
+    from latent_model.transfer import Transfer
+
+    paths = ShippedPaths.at()
+    ck = Path(checkpoint) if checkpoint else paths.checkpoint
+    bk = Path(bank) if bank else paths.bank
+    for p, what in ((ck, "--checkpoint"), (bk, "--bank")):
+        if not p.exists():
+            raise PredictError(f"{p} does not exist; pass {what} or restore the shipped assets/ (or set LRR_ASSETS)")
+    try:
+        return Transfer.from_files(ck, bk)
+    except AssetsError as e:
+        raise PredictError(str(e)) from None
+
+
+def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose_delta", magnitude: float = 1.0,
+                 kind: str = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
+                 seed: int = 0) -> tuple[np.ndarray, str, float, float]:
+    """(vertices (W, 3), conditioning label, prepare seconds, predict seconds) of a loaded mesh."""
+    from latent_model.transfer import parse_strategy
+
+    check_pose(transfer, pose, kind)
+    if pose_b is not None:
+        check_pose(transfer, pose_b, kind)
+    if not np.isfinite(magnitude) or not 0.0 <= magnitude <= 10.0:
+        raise PredictError(f"--magnitude must lie in [0, 10] (1 = as conditioned), got {magnitude}")
+    if not 0.0 <= blend <= 1.0:
+        raise PredictError(f"--blend must lie in [0, 1], got {blend}")
+    if blend > 0 and pose_b is None:
+        raise PredictError("--blend needs --pose-b (the pose to blend toward)")
+    parse_strategy(strategy)
+    t0 = time.perf_counter()
+    prepared = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
+    t1 = time.perf_counter()
+    try:
+        _, label = transfer.delta(prepared, pose, strategy, kind)
+        out = transfer.predict(prepared, pose, strategy, magnitude, kind, pose_b, blend)
+    except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
+        raise PredictError(str(e).strip("'\"")) from None
+    return out, label, t1 - t0, time.perf_counter() - t1
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--mesh", required=True, help="input mesh (.obj .ply .stl .glb .gltf .off)")
+    p.add_argument("--pose", required=True, help="pose name, e.g. elbowBentLf (`lrr corpus poses` lists them)")
+    p.add_argument("--pose-b", help="second pose to blend toward")
+    p.add_argument("--blend", type=float, default=0.0, help="0 = pose A, 1 = pose B (default 0)")
+    p.add_argument("--strategy", default="nearest",
+                   help="mean (mean pose delta), nearest (nearest identity delta, default) or identity:<id>")
+    p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r (0-2; default 1)")
+    p.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose)")
+    p.add_argument("--up", default="auto", choices=("auto", "y", "z"), help="up axis of the file (default: detected)")
+    p.add_argument("--units", default="auto", choices=("auto", "m", "cm", "mm"), help="units of the file (default: detected)")
+    p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
+    p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
+    p.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in the input's frame and units")
+
+
+def run_cli(args) -> None:
+    out = Path(args.output)
+    if out.suffix.lower() not in EXPORT_FORMATS:
+        raise MeshError(f"{out}: cannot export {out.suffix or '(no extension)'}; use one of {', '.join(EXPORT_FORMATS)}")
+    t0 = time.perf_counter()
+    mesh = load_mesh(args.mesh, up=args.up, units=args.units)
+    t_load = time.perf_counter() - t0
+    transfer = load_transfer(args.checkpoint, args.bank)
+    verts, label, t_prep, t_pred = predict_file(transfer, mesh, args.pose, args.strategy, args.magnitude,
+                                                args.kind, args.pose_b, args.blend)
+    export_mesh(mesh, verts, out)
+    disp = np.linalg.norm(verts - mesh.vertices, axis=1) * 1000
+    what = args.pose + (f" -> {args.pose_b} ({args.blend:g})" if args.pose_b and args.blend > 0 else "")
+    print(f"{mesh.summary()}")
+    print(f"{what}, strategy {args.strategy} (conditioning: {label}), magnitude {args.magnitude:g}: "
+          f"displacement mean {disp.mean():.1f} mm, max {disp.max():.1f} mm")
+    print(f"wrote {out} (import {t_load:.2f} s, encode {t_prep:.2f} s, predict {t_pred:.2f} s)")

@@ -1,0 +1,146 @@
+"""What ships in `assets/`: the trained `standard` model, its latent bank, the identity specs
+and the reference report, and the ground truth of held-out identities regenerated from the
+specs through the same rig code (so the explorer needs no corpus).
+
+Layout (relative to the assets directory, `$LRR_ASSETS` or the repository's `assets/`):
+    model/model.safetensors   trained checkpoint (preset + format inside)
+    model/bank.safetensors    latent bank of that checkpoint
+    identities.json           {"preset", "poses", "identities": [IdentitySpec dicts]}
+    report/                   `lrr evaluate` output of the shipped model
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from latent_model.corpus.identities import IdentitySpec
+from latent_model.corpus.pairs import FINAL, PAIR_KINDS
+from latent_model.corpus.poses import get_pose
+from latent_model.corpus.store import atomic_write_json
+
+REPO_ASSETS = Path(__file__).resolve().parent.parent / "assets"
+
+
+class AssetsError(RuntimeError):
+    pass
+
+
+def assets_dir() -> Path:
+    return Path(os.environ.get("LRR_ASSETS", REPO_ASSETS))
+
+
+@dataclass(frozen=True)
+class ShippedPaths:
+    checkpoint: Path
+    bank: Path
+    identities: Path
+    report: Path
+
+    @staticmethod
+    def at(root: Path | None = None) -> "ShippedPaths":
+        root = Path(root) if root is not None else assets_dir()
+        return ShippedPaths(root / "model" / "model.safetensors", root / "model" / "bank.safetensors",
+                            root / "identities.json", root / "report")
+
+    def check(self) -> "ShippedPaths":
+        for p in (self.checkpoint, self.bank, self.identities):
+            if not p.exists():
+                raise AssetsError(f"shipped asset {p} is missing; restore assets/ from git "
+                                  f"(or set LRR_ASSETS to a directory holding model/ and identities.json)")
+        return self
+
+
+def write_identity_specs(path: Path, preset_name: str, poses: tuple[str, ...], specs: list[IdentitySpec]) -> None:
+    atomic_write_json(Path(path), {"preset": preset_name, "poses": list(poses),
+                                   "identities": [s.to_dict() for s in specs]})
+
+
+def load_identity_specs(path: Path | None = None) -> tuple[list[IdentitySpec], tuple[str, ...]]:
+    """(specs, pose names) from identities.json."""
+    path = Path(path) if path is not None else ShippedPaths.at().identities
+    try:
+        d = json.loads(Path(path).read_text())
+        return [IdentitySpec.from_dict(x) for x in d["identities"]], tuple(d["poses"])
+    except FileNotFoundError:
+        raise AssetsError(f"identity specs {path} are missing; restore assets/ from git") from None
+    except (ValueError, KeyError, TypeError) as e:
+        raise AssetsError(f"identity specs {path} are unreadable ({e}); restore assets/ from git") from e
+
+
+def pair_states(kind: str, pose: str, source_pose: str | None = None) -> tuple[tuple[str | None, str], tuple[str, str]]:
+    """((source pose or None, variant), (target pose, variant)) of a pair kind (see corpus/pairs.py).
+    `source_pose` names the component for `source_to_combo` (default: the combo's first one)."""
+    if kind not in PAIR_KINDS:
+        raise ValueError(f"unknown pair kind {kind!r}; valid: {', '.join(PAIR_KINDS)}")
+    p = get_pose(pose)
+    if kind == "neutral_to_pose":
+        return (None, "neutral"), (pose, FINAL)
+    if kind in ("skinning_to_skinning_plus_blendshape", "blendshape_to_skinning_plus_blendshape"):
+        if not p.has_skeletal:
+            raise ValueError(f"pose {pose!r} has no skeletal part, so it has no {kind} pair; use neutral_to_pose")
+        return (pose, kind.split("_to_")[0]), (pose, FINAL)
+    if not p.is_combo:
+        raise ValueError(f"pose {pose!r} is not a combined pose, so it has no source_to_combo pair")
+    comp = source_pose or p.components[0]
+    if comp not in p.components:
+        raise ValueError(f"{comp!r} is not a component of {pose!r}; components: {', '.join(p.components)}")
+    return (comp, FINAL), (pose, FINAL)
+
+
+def bank_pose_key(kind: str, pose: str, source_pose: str | None = None) -> str:
+    """The latent bank's pose key of a pair (source_to_combo keys name the component)."""
+    if kind == "source_to_combo":
+        (comp, _), _ = pair_states(kind, pose, source_pose)
+        return f"{pose}<{comp}"
+    return pose
+
+
+class GroundTruth:
+    """Regenerates states of identity specs through the rig (float32 vertices, cached).
+    The first use builds anny's cache if it is missing (minutes, once per machine)."""
+
+    def __init__(self, specs: list[IdentitySpec]) -> None:
+        from latent_model.corpus.states import StateGenerator
+
+        self.specs = {s.id: s for s in specs}
+        self.gen = StateGenerator()
+        self._cache: dict[tuple, np.ndarray] = {}
+        self._body_faces: np.ndarray | None = None
+
+    @property
+    def faces(self) -> np.ndarray:
+        return np.asarray(self.gen.faces, dtype=np.int64)
+
+    @property
+    def body_faces(self) -> np.ndarray:
+        """Faces of the body shell (the SDF surface)."""
+        if self._body_faces is None:
+            from latent_model.corpus.sdf import body_component_faces
+
+            any_spec = next(iter(self.specs.values()))
+            self._body_faces = body_component_faces(self.gen.neutral(any_spec), self.gen.faces)
+        return self._body_faces
+
+    def spec(self, identity: str) -> IdentitySpec:
+        try:
+            return self.specs[identity]
+        except KeyError:
+            raise ValueError(f"unknown identity {identity!r}; valid: {', '.join(self.specs)}") from None
+
+    def state(self, identity: str, pose: str | None, variant: str) -> np.ndarray:
+        """(V, 3) float32 vertices of (identity, pose, variant); pose None = neutral."""
+        key = (identity, pose, variant)
+        if key not in self._cache:
+            if len(self._cache) > 256:
+                self._cache.clear()
+            self._cache[key] = self.gen.state(self.spec(identity), pose, variant).astype(np.float32)
+        return self._cache[key]
+
+    def pair(self, identity: str, kind: str, pose: str, source_pose: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(source, target) vertices of a pair of the given kind."""
+        (sp, sv), (tp, tv) = pair_states(kind, pose, source_pose)
+        return self.state(identity, sp, sv), self.state(identity, tp, tv)
