@@ -16,7 +16,7 @@ from safetensors.numpy import load_file, save_file
 from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
 from latent_model.corpus.store import Corpus
 
-BANK_FORMAT = 1
+BANK_FORMAT = 2  # 2: unique latent rows + (source, target) indices per delta
 
 
 class BankError(RuntimeError):
@@ -35,6 +35,8 @@ class LatentBank:
     deltas: dict[tuple[str, str], tuple[list[str], np.ndarray]]
     sources: dict[tuple[str, str], np.ndarray]  # (kind, pose) -> (n, Z) source means (for nearest identity)
     model_digest: str
+    # (kind, pose) -> (source state indices, target state indices) into `mu`/`keys`
+    pair_index: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] | None = None
 
     def standardise(self, mu: np.ndarray) -> np.ndarray:
         return (mu - self.mean) / self.scale
@@ -70,15 +72,22 @@ class LatentBank:
 
     # ------------------------------------------------------------------ io
     def save(self, path: Path) -> None:
+        """Unique latent rows (states sharing a geometry share a row) + per-delta index pairs:
+        deltas are rebuilt exactly (the same float32 subtraction) on load."""
         import os
         import tempfile
 
-        tensors = {"mu": self.mu.astype(np.float32), "mean": self.mean.astype(np.float32),
+        if self.pair_index is None:
+            raise BankError("this bank has no pair index (built by an older version); rebuild it with `lrr bank`")
+        uniq, inverse = np.unique(self.mu.astype(np.float32), axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1).astype(np.int32)
+        tensors = {"rows": uniq, "state_row": inverse, "mean": self.mean.astype(np.float32),
                    "scale": self.scale.astype(np.float32)}
         index = []
-        for n, ((kind, pose), (ids, d)) in enumerate(self.deltas.items()):
-            tensors[f"delta{n}"] = d.astype(np.float32)
-            tensors[f"source{n}"] = self.sources[(kind, pose)].astype(np.float32)
+        for n, ((kind, pose), (ids, _)) in enumerate(self.deltas.items()):
+            src, tgt = self.pair_index[(kind, pose)]
+            tensors[f"src{n}"] = np.asarray(src, np.int32)
+            tensors[f"tgt{n}"] = np.asarray(tgt, np.int32)
             index.append({"kind": kind, "pose": pose, "ids": ids})
         meta = {"format": str(BANK_FORMAT), "keys": json.dumps(self.keys), "index": json.dumps(index),
                 "model_digest": self.model_digest}
@@ -88,6 +97,7 @@ class LatentBank:
         os.close(fd)
         try:
             save_file(tensors, tmp, metadata=meta)
+            os.chmod(tmp, 0o644)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -109,10 +119,16 @@ class LatentBank:
         if meta.get("format") != str(BANK_FORMAT):
             raise BankError(f"latent bank {path} has format {meta.get('format')}, expected {BANK_FORMAT}; rebuild it")
         index = json.loads(meta["index"])
-        deltas = {(e["kind"], e["pose"]): (e["ids"], t[f"delta{n}"]) for n, e in enumerate(index)}
-        sources = {(e["kind"], e["pose"]): t[f"source{n}"] for n, e in enumerate(index)}
-        return LatentBank(t["mu"], json.loads(meta["keys"]), t["mean"], t["scale"], deltas, sources,
-                          meta.get("model_digest", ""))
+        mu = t["rows"][t["state_row"]]
+        deltas, sources, pair_index = {}, {}, {}
+        for n, e in enumerate(index):
+            key = (e["kind"], e["pose"])
+            src, tgt = t[f"src{n}"].astype(np.int64), t[f"tgt{n}"].astype(np.int64)
+            deltas[key] = (e["ids"], mu[tgt] - mu[src])
+            sources[key] = mu[src]
+            pair_index[key] = (src, tgt)
+        return LatentBank(mu, json.loads(meta["keys"]), t["mean"], t["scale"], deltas, sources,
+                          meta.get("model_digest", ""), pair_index)
 
 
 def model_digest(model: torch.nn.Module) -> str:
@@ -158,6 +174,8 @@ def build_bank(model, corpus: Corpus, device: torch.device | None = None, progre
     scale = mu.std(axis=0) + 1e-6
     deltas: dict = {}
     sources: dict = {}
+    pair_index: dict = {}
+    position = {s: k for k, s in enumerate(states)}
     pairs = enumerate_pairs(train, corpus.poses, PAIR_KINDS)
     grouped: dict[tuple[str, str], list] = {}
     for p in pairs:
@@ -167,14 +185,13 @@ def build_bank(model, corpus: Corpus, device: torch.device | None = None, progre
             key = (p.kind, p.pose)
         grouped.setdefault(key, []).append(p)
     for key, ps in grouped.items():
-        ids, d, src = [], [], []
+        ids, si, ti = [], [], []
         for p in ps:
-            s_src = corpus.state(p.identity, p.source[0], p.source[1])
-            s_tgt = corpus.state(p.identity, p.target[0], p.target[1])
-            m_src, m_tgt = mu_of_row[corpus.row(s_src)], mu_of_row[corpus.row(s_tgt)]
+            si.append(position[corpus.state(p.identity, p.source[0], p.source[1])])
+            ti.append(position[corpus.state(p.identity, p.target[0], p.target[1])])
             ids.append(corpus.identities[p.identity].id)
-            d.append(m_tgt - m_src)
-            src.append(m_src)
-        deltas[key] = (ids, np.stack(d))
-        sources[key] = np.stack(src)
-    return LatentBank(mu, keys, mean, scale, deltas, sources, model_digest(model))
+        si, ti = np.asarray(si), np.asarray(ti)
+        deltas[key] = (ids, mu[ti] - mu[si])
+        sources[key] = mu[si]
+        pair_index[key] = (si, ti)
+    return LatentBank(mu, keys, mean, scale, deltas, sources, model_digest(model), pair_index)

@@ -1,0 +1,122 @@
+"""Analysis 6: mesh prediction on held-out identities through the Transfer API, per pair kind
+and pose, for the learned strategies (mean, nearest, oracle) and honest baselines:
+
+- ``no_motion``: the source mesh itself;
+- ``offset_nearest``: the vertex offsets (target - source) of the training identity whose
+  neutral mesh is nearest (mean per-vertex distance, centroids aligned), added to the source;
+- ``offset_mean``: the training identities' mean vertex offsets added to the source.
+The offset copies are possible only because every corpus mesh shares one topology: a user's
+own mesh has no such correspondence, the learned model needs none.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from latent_model.analysis.metrics import mesh_errors, normal_consistency
+from latent_model.corpus.pairs import PAIR_KINDS, Pair, enumerate_pairs
+from latent_model.corpus.poses import get_pose
+from latent_model.corpus.sdf import vertex_normals
+from latent_model.corpus.store import Corpus
+
+STRATEGIES = ("mean", "nearest", "oracle", "no_motion", "offset_nearest", "offset_mean")
+METRICS = ("err_mm", "err_moving_mm", "leak_mm", "explained", "normal")
+EXAMPLE_POSES = ("elbowBentLf", "elbowSuperBentLf", "cornerUpLf", "browDwLf+browDwRt", "kneeBentLf", "puffLf")
+
+
+def pose_key(p: Pair) -> str:
+    """Metrics key of a pair's pose (source_to_combo names its component: combo@component)."""
+    return f"{p.pose}@{p.source[0]}" if p.kind == "source_to_combo" else p.pose
+
+
+def bank_key(p: Pair) -> str:
+    return f"{p.pose}<{p.source[0]}" if p.kind == "source_to_combo" else p.pose
+
+
+def nearest_training_identity(corpus: Corpus, train: list[int]) -> Callable[[int], int]:
+    """identity -> training identity with the nearest neutral mesh (centroid-aligned)."""
+    def centred(i: int) -> np.ndarray:
+        v = corpus.vertices(corpus.state(i, None, "neutral"))
+        return v - v.mean(0)
+
+    train_v = np.stack([centred(j) for j in train])
+
+    def nearest(i: int) -> int:
+        d = np.linalg.norm(train_v - centred(i)[None], axis=2).mean(1)
+        return train[int(np.argmin(d))]
+
+    return nearest
+
+
+def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str, ...] = PAIR_KINDS,
+                      example_identity: int | None = None, progress: bool = True) -> tuple[dict, dict]:
+    """(flat metrics `transfer.<kind>.<pose>.<strategy>.<metric>` + group means, examples for
+    figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity)."""
+    from tqdm import tqdm
+
+    from latent_model.bank import encode_states
+
+    train = corpus.split_indices("train")
+    nearest_of = nearest_training_identity(corpus, train)
+    near = {i: nearest_of(i) for i in ids}
+    faces = corpus.faces
+    prepared: dict[int, object] = {}
+    per: dict[tuple[str, str, str], list[dict]] = {}
+    examples: dict = {}
+    example_identity = ids[0] if example_identity is None else example_identity
+    pairs_by_key: dict[tuple[str, str], list[Pair]] = {}
+    for p in enumerate_pairs(ids, tuple(corpus.poses), kinds):
+        pairs_by_key.setdefault((p.kind, bank_key(p)), []).append(p)
+
+    def latent(s: int) -> np.ndarray:
+        return encode_states(transfer.model, corpus, [s], transfer.device)[0]
+
+    for (kind, bkey), pairs in tqdm(pairs_by_key.items(), desc="transfer", unit="pose", disable=not progress):
+        # training offsets of this (kind, pose), for the offset-copy baselines
+        offsets = {}
+        for j in train:
+            s, t = corpus.state(j, *pairs[0].source), corpus.state(j, *pairs[0].target)
+            offsets[j] = corpus.vertices(t) - corpus.vertices(s)
+        mean_offset = np.mean(np.stack(list(offsets.values())), axis=0)
+        for p in pairs:
+            s = corpus.state(p.identity, p.source[0], p.source[1])
+            t = corpus.state(p.identity, *p.target)
+            v_src, truth = corpus.vertices(s), corpus.vertices(t)
+            row = corpus.row(s)
+            if row not in prepared:
+                if len(prepared) > 64:
+                    prepared.clear()
+                prepared[row] = transfer.prepare(v_src, faces, sdf_faces=corpus.body_faces, mu=latent(s))
+            mesh = prepared[row]
+            preds = {
+                "mean": transfer.predict(mesh, bkey, "mean_pose_delta", kind=kind),
+                "nearest": transfer.predict(mesh, bkey, "nearest_identity_delta", kind=kind),
+                "oracle": transfer.predict(mesh, bkey, "oracle", kind=kind, oracle_target_mu=latent(t)),
+                "no_motion": v_src,
+                "offset_nearest": v_src + offsets[near[p.identity]],
+                "offset_mean": v_src + mean_offset,
+            }
+            n_true = vertex_normals(truth, faces)
+            for name, pred in preds.items():
+                e = mesh_errors(pred, truth, v_src)
+                e["normal"] = normal_consistency(vertex_normals(pred, faces), n_true)
+                per.setdefault((kind, pose_key(p), name), []).append(e)
+            if p.identity == example_identity and (p.pose in EXAMPLE_POSES or kind == "skinning_to_skinning_plus_blendshape"
+                                                   and p.pose == "elbowBentLf"):
+                examples[(kind, pose_key(p))] = {"source": v_src, "truth": truth,
+                                                 **{k: preds[k] for k in ("mean", "nearest", "oracle")}}
+    m: dict = {}
+    for (kind, pose, strat), rows in per.items():
+        for k in METRICS:
+            m[f"transfer.{kind}.{pose}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
+    # group means (per pair kind, pose group, strategy)
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for (kind, pose, strat), rows in per.items():
+        base = pose.split("@")[0]
+        g = "combo" if get_pose(base).is_combo else get_pose(base).group
+        groups.setdefault((kind, g, strat), []).extend(rows)
+    for (kind, g, strat), rows in groups.items():
+        for k in METRICS:
+            m[f"transfer_group.{kind}.{g}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
+    return m, examples

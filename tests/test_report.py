@@ -1,0 +1,98 @@
+"""`lrr evaluate` end to end on the tiny preset: every section and figure, stable metric keys,
+deterministic numbers."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from latent_model.bank import build_bank
+from latent_model.config import preset
+from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
+from latent_model.nn.model import LatentReRig
+from latent_model.train.checkpoint import save_checkpoint
+
+STRATEGIES = ("mean", "nearest", "oracle", "no_motion", "offset_nearest", "offset_mean")
+STATS = ("n", "mean", "median", "std", "min", "max")
+
+
+@pytest.fixture(scope="module")
+def model_files(tiny_corpus, tmp_path_factory):
+    torch.manual_seed(0)
+    p = preset("tiny")
+    model = LatentReRig(p.model).eval()
+    with torch.no_grad():  # give the untrained decoder some motion to measure
+        for prm in model.vertex_decoder.parameters():
+            prm.add_(torch.randn_like(prm) * 0.05)
+    d = tmp_path_factory.mktemp("model")
+    save_checkpoint(d / "model.safetensors", model, p, "all", 0)
+    build_bank(model, tiny_corpus, progress=False).save(d / "bank.safetensors")
+    return d / "model.safetensors", d / "bank.safetensors"
+
+
+@pytest.fixture(scope="module")
+def report(model_files, tiny_corpus, tmp_path_factory):
+    from latent_model.analysis.report import evaluate
+
+    out = tmp_path_factory.mktemp("report")
+    evaluate(model_files[0], model_files[1], tiny_corpus.path, out, progress=False)
+    return out, json.loads((out / "metrics.json").read_text())
+
+
+def required_keys(corpus) -> list[str]:
+    keys = []
+    for pose in corpus.poses:
+        keys += [f"latent.pose_consistency.{pose}.{k}" for k in ("cos_mean", "cos_std", "norm_mean")]
+    for name in ("identity_distance", "noise_distance"):
+        keys += [f"latent.{name}.{s}" for s in STATS]
+    keys += ["latent.identity_noise_ratio", "latent.ks.D", "latent.ks.p", "latent.cond_noise.mean",
+             "latent.cond_noise.median"]
+    keys += [f"baseline.pca16.{k}" for k in list(keys)]
+    test = corpus.split_indices("test")
+    for p in enumerate_pairs(test[:1], tuple(corpus.poses), PAIR_KINDS):
+        pose = f"{p.pose}@{p.source[0]}" if p.kind == "source_to_combo" else p.pose
+        for s in STRATEGIES:
+            keys += [f"transfer.{p.kind}.{pose}.{s}.{m}" for m in ("err_mm", "err_moving_mm", "leak_mm", "explained")]
+    return keys
+
+
+def test_report_has_every_section_and_figure(report):
+    from PIL import Image
+
+    out, _ = report
+    md = (out / "report.md").read_text()
+    for title in ("## 1. Pose consistency", "## 2-3. Identity separation", "## 4. R_cond/noise", "## 5. Identity–pose",
+                  "## 6. Mesh prediction", "## 7. Rendered predictions"):
+        assert title in md
+    figures = [line.split("](")[1].rstrip(")") for line in md.splitlines() if line.startswith("![")]
+    assert {"identity_distances.png", "pose_cosines.png", "noise_floor.png", "entanglement.png",
+            "pose_consistency.png"} <= set(figures)
+    assert any(f.startswith("transfer_neutral_to_pose_elbowBentLf") for f in figures)
+    assert any(f.startswith("transfer_skinning_to_skinning_plus_blendshape_elbowBentLf") for f in figures)
+    for f in figures:
+        img = np.asarray(Image.open(out / f).convert("L"), dtype=float)
+        assert img.shape[0] > 100 and img.std() > 5, f"figure {f} is blank"
+
+
+def test_metrics_keys_are_stable_and_finite(report, tiny_corpus):
+    _, m = report
+    missing = [k for k in required_keys(tiny_corpus) if k not in m]
+    assert not missing, f"missing metrics keys, e.g. {missing[:5]}"
+    numbers = {k: v for k, v in m.items() if isinstance(v, float)}
+    assert all(np.isfinite(v) for v in numbers.values())
+    # no motion explains nothing and leaks nothing; the oracle sees the true target latent
+    kind, pose = "neutral_to_pose", "elbowBentLf"
+    assert m[f"transfer.{kind}.{pose}.no_motion.explained"] == 0.0
+    assert m[f"transfer.{kind}.{pose}.no_motion.leak_mm"] == 0.0
+    assert 0 < m["latent.identity_distance.n"] <= 190
+
+
+def test_latent_metrics_are_deterministic(report, model_files, tiny_corpus, tmp_path):
+    from latent_model.analysis.report import evaluate
+
+    _, first = report
+    out = evaluate(model_files[0], model_files[1], tiny_corpus.path, tmp_path / "again", transfer_ids=1, progress=False)
+    again = json.loads((out / "metrics.json").read_text())
+    for k, v in first.items():
+        if k.startswith(("latent.", "baseline.")):
+            assert again[k] == pytest.approx(v, rel=1e-6, abs=1e-9), k
