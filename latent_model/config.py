@@ -184,8 +184,8 @@ def preset(name: str) -> Preset:
         return Preset(name, corpus, model, train)
     if name == "standard":
         model = ModelConfig(n_identities=n_train, n_poses=n_poses)
-        # sized for <= 90 min on 2 CPU cores (bench/bench_train.py): A ~0.3 s/step, B ~1.2 s/step
-        train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=1500)
+        # sized for <= 90 min on 2 CPU cores (bench/bench_train.py): A ~0.3 s/step, B ~0.7-0.9 s/step
+        train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=2500)
         return Preset(name, corpus, model, train)
     if name == "paper":
         model = ModelConfig(enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
