@@ -6,13 +6,16 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 
-# System packages: none are needed by the model package yet beyond a Python with venv;
-# the explorer's GUI packages are added here when it lands.
-SYSTEM_PACKAGES=(python3-venv)
+# System packages (Debian, when root and missing): venv support if the Python lacks it, and what the explorer's
+# Qt/VTK stack needs to draw under an X server (Xvfb for CI and screenshots; each one was needed).
+SYSTEM_PACKAGES=(xvfb xauth libegl1 libglib2.0-0 libdbus-1-3 libfontconfig1 libxkbcommon-x11-0
+                 libxcb-cursor0 libxcb-icccm4 libxcb-image0 libxcb-keysyms1 libxcb-render-util0 libxcb-shape0)
 if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
   missing=()
   for p in "${SYSTEM_PACKAGES[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
-  if ! "$PY" -m venv --help >/dev/null 2>&1 && [ ${#missing[@]} -gt 0 ]; then
+  # python3-venv only where this Python has no venv module (a non-Debian Python brings its own)
+  "$PY" -m venv --help >/dev/null 2>&1 || missing+=(python3-venv)
+  if [ ${#missing[@]} -gt 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
   fi
 fi
@@ -29,5 +32,5 @@ if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
     .venv/bin/pip install -q "torch==2.13.0"
   fi
 fi
-.venv/bin/pip install -q -e ".[test]"
+.venv/bin/pip install -q -e ".[test,gui]"
 echo "setup done: $(.venv/bin/python -c 'import torch, anny; print("torch", torch.__version__, "| anny", anny.__version__ if hasattr(anny, "__version__") else "0.6.2")')"

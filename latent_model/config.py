@@ -141,7 +141,6 @@ class TrainConfig:
     # phase B
     b_steps: int = 2000
     b_batch: int = 4  # pairs per step
-    b_vertices: int = 0  # 0 = full meshes; else a random vertex subset (neighbourhoods from the full mesh)
     b_lr: float = 1e-3
     b_kinds: tuple[str, ...] = ("neutral_to_pose", "skinning_to_skinning_plus_blendshape",
                                 "blendshape_to_skinning_plus_blendshape", "source_to_combo")
@@ -163,11 +162,13 @@ class Preset:
 
     @staticmethod
     def from_dict(d: dict) -> "Preset":
-        def tup(x):
-            return {k: tuple(v) if isinstance(v, list) else v for k, v in x.items()}
+        def tup(x, cls=None):
+            # fields a newer version dropped are ignored (e.g. the unused b_vertices of early runs)
+            known = {f.name for f in dataclasses.fields(cls)} if cls else None
+            return {k: tuple(v) if isinstance(v, list) else v for k, v in x.items() if known is None or k in known}
 
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), ModelConfig(**tup(d["model"])),
-                      TrainConfig(**tup(d["train"])), LossWeights(**d["loss"]))
+                      TrainConfig(**tup(d["train"], TrainConfig)), LossWeights(**d["loss"]))
 
 
 def preset(name: str) -> Preset:
@@ -180,7 +181,7 @@ def preset(name: str) -> Preset:
                             sdf_layers=4, n_identities=n_train, n_poses=n_poses, vd_hidden=16, vd_cond=32,
                             vd_bones=4, vd_knn=6, vd_edge=8)
         train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
-                            b_steps=20, b_batch=2, b_vertices=2048, checkpoint_every=10, log_every=5)
+                            b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
         return Preset(name, corpus, model, train)
     if name == "standard":
         model = ModelConfig(n_identities=n_train, n_poses=n_poses)

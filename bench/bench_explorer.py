@@ -1,0 +1,83 @@
+"""Benchmark the explorer's scrubbing: slider value change -> new prediction on screen (request,
+coalescing worker, Transfer.predict, points/scalars set in place, VTK render), median over
+several slider moves; and the vertex-decoder part alone (Transfer.predict on the same prepared
+mesh). Targets: <= 120 ms and <= 40 ms (software rendering under Xvfb). Prints medians; never asserts.
+
+Needs an X server:  xvfb-run -a python bench/bench_explorer.py [--moves 20] [--threads 1]
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--moves", type=int, default=20)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    ap.add_argument("--pose", default="elbowBentLf")
+    args = ap.parse_args()
+    import torch
+    from PySide6.QtWidgets import QApplication
+
+    from explorer.main_window import MainWindow
+    from explorer.session import Selection
+
+    torch.set_num_threads(args.threads)
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    t0 = time.perf_counter()
+    win = MainWindow(Selection(pose=args.pose))
+    win.resize(1680, 900)
+    win.show()
+
+    def wait(cond, timeout=600.0):
+        end = time.perf_counter() + timeout
+        while not cond():
+            app.processEvents()
+            time.sleep(0.001)
+            if time.perf_counter() > end:
+                raise SystemExit("timed out waiting for the window")
+
+    wait(lambda: win.is_settled())
+    print(f"startup to first prediction on screen + heatmaps: {time.perf_counter() - t0:.1f} s")
+    # slider -> screen, one move at a time (each waits for its prediction to be drawn)
+    lat = []
+    for k in range(args.moves):
+        value = 60 + (k * 37) % 140
+        if value == win.controls.magnitude.value():
+            value += 1
+        n = len(win.update_ms)
+        t = time.perf_counter()
+        win.controls.magnitude.setValue(value)
+        wait(lambda: len(win.update_ms) > n and win.worker.idle)
+        app.processEvents()  # the Qt paint of the views
+        lat.append((time.perf_counter() - t) * 1000)
+    # decoder alone
+    s = win.worker.session
+    sel = win.state.selection
+    prepared = s.prepared(sel.target, sel.kind, sel.pose)
+    dec = []
+    for k in range(args.moves):
+        t = time.perf_counter()
+        s.transfer.predict(prepared, sel.pose, sel.strategy, 0.5 + k / args.moves, sel.kind)
+        dec.append((time.perf_counter() - t) * 1000)
+    # a fast scrub: 50 values as quickly as Qt delivers them
+    n = len(win.update_ms)
+    t = time.perf_counter()
+    for v in range(100, 200, 2):
+        win.controls.magnitude.setValue(v)
+        app.processEvents()
+    wait(lambda: win.worker.idle and win.state.selection.magnitude == 1.98)
+    scrub = time.perf_counter() - t
+    print(f"slider -> new prediction on screen: median {statistics.median(lat):.0f} ms "
+          f"(min {min(lat):.0f}, max {max(lat):.0f}; {args.moves} moves; target <= 120 ms)")
+    print(f"vertex decoder (Transfer.predict): median {statistics.median(dec):.0f} ms (target <= 40 ms)")
+    print(f"fast scrub of 50 slider steps: {scrub:.2f} s, {len(win.update_ms) - n} predictions drawn "
+          f"(the rest coalesced away)")
+    win.close()
+
+
+if __name__ == "__main__":
+    main()

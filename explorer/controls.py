@@ -1,0 +1,200 @@
+"""The control panel: target, pair kind, poses A/B, conditioning strategy, magnitude and blend
+sliders, display toggles and reset buttons. Emits `changed(Selection)` on every edit (the
+window coalesces the resulting predictions)."""
+from __future__ import annotations
+
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
+                               QSlider, QVBoxLayout, QWidget)
+
+from explorer.session import Selection
+
+NONE_POSE = "(none)"
+STRATEGY_ITEMS = (("mean pose delta", "mean_pose_delta"), ("nearest identity delta", "nearest_identity_delta"),
+                  ("chosen identity", "identity"))
+
+
+class Controls(QWidget):
+    changed = Signal(object)  # Selection
+    view_requested = Signal(str)  # front | side | reset
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self._quiet = False
+        outer = QVBoxLayout(self)
+        box = QGroupBox("Prediction", self)
+        form = QFormLayout(box)
+        self.target = QComboBox(box)
+        self.kind = QComboBox(box)
+        self.pose = QComboBox(box)
+        self.pose_b = QComboBox(box)
+        self.strategy = QComboBox(box)
+        for text, data in STRATEGY_ITEMS:
+            self.strategy.addItem(text, data)
+        self.identity = QComboBox(box)
+        for w in (self.target, self.kind, self.pose, self.pose_b, self.identity):
+            w.setSizeAdjustPolicy(QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
+            w.setMinimumContentsLength(14)
+        form.addRow("Target", self.target)
+        form.addRow("Pair kind", self.kind)
+        form.addRow("Pose A", self.pose)
+        form.addRow("Pose B", self.pose_b)
+        form.addRow("Conditioning", self.strategy)
+        form.addRow("Identity", self.identity)
+        self.magnitude = QSlider(Qt.Orientation.Horizontal, box)
+        self.magnitude.setRange(0, 200)
+        self.magnitude.setValue(100)
+        self.magnitude_label = QLabel("1.00x", box)
+        self.blend = QSlider(Qt.Orientation.Horizontal, box)
+        self.blend.setRange(0, 100)
+        self.blend_label = QLabel("0.00", box)
+        for s in (self.magnitude, self.blend):
+            s.setSingleStep(1)
+            s.setPageStep(10)
+        form.addRow("Delta magnitude", self._row(self.magnitude, self.magnitude_label))
+        form.addRow("Pose blend A→B", self._row(self.blend, self.blend_label))
+        outer.addWidget(box)
+
+        disp = QGroupBox("Display", self)
+        dl = QVBoxLayout(disp)
+        self.displacement = QCheckBox("Colour by displacement (not error)", disp)
+        self.compare = QCheckBox("Compare mean vs nearest", disp)
+        self.wireframe = QCheckBox("Wireframe", disp)
+        for w in (self.displacement, self.compare, self.wireframe):
+            dl.addWidget(w)
+        views = QHBoxLayout()
+        for text, which in (("Front", "front"), ("Side", "side"), ("Reset view", "reset")):
+            b = QPushButton(text, disp)
+            b.clicked.connect(lambda _=False, w=which: self.view_requested.emit(w))
+            views.addWidget(b)
+        dl.addLayout(views)
+        self.reset_sliders = QPushButton("Reset sliders", disp)
+        self.reset_all = QPushButton("Reset selection", disp)
+        resets = QHBoxLayout()
+        resets.addWidget(self.reset_sliders)
+        resets.addWidget(self.reset_all)
+        dl.addLayout(resets)
+        outer.addWidget(disp)
+        outer.addStretch(1)
+
+        for w in (self.target, self.pose, self.pose_b, self.strategy, self.identity):
+            w.currentIndexChanged.connect(self._emit)
+        self.kind.currentIndexChanged.connect(self._kind_changed)
+        self.magnitude.valueChanged.connect(self._emit)
+        self.blend.valueChanged.connect(self._emit)
+        for w in (self.displacement, self.compare, self.wireframe):
+            w.toggled.connect(self._emit)
+        self.reset_sliders.clicked.connect(self.do_reset_sliders)
+        self._poses_by_kind: dict[str, list[str]] = {}
+        self.setEnabled(False)
+
+    @staticmethod
+    def _row(slider: QSlider, label: QLabel) -> QWidget:
+        w = QWidget()
+        lay = QHBoxLayout(w)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.addWidget(slider, 1)
+        label.setMinimumWidth(40)
+        lay.addWidget(label)
+        return w
+
+    # -------------------------------------------------------------- choices
+    def set_choices(self, targets: list[str], kinds: list[str], poses_by_kind: dict[str, list[str]],
+                    identities: list[str]) -> None:
+        self._quiet = True
+        try:
+            self._poses_by_kind = poses_by_kind
+            self._fill(self.target, targets)
+            self._fill(self.kind, kinds)
+            self._fill(self.identity, identities)
+            self._fill_poses(self.kind.currentText())
+        finally:
+            self._quiet = False
+        self.setEnabled(True)
+
+    @staticmethod
+    def _fill(combo: QComboBox, items: list[str]) -> None:
+        cur = combo.currentText()
+        combo.blockSignals(True)
+        combo.clear()
+        combo.addItems(items)
+        if cur in items:
+            combo.setCurrentText(cur)
+        combo.blockSignals(False)
+
+    def _fill_poses(self, kind: str) -> None:
+        poses = self._poses_by_kind.get(kind, [])
+        self._fill(self.pose, poses)
+        self._fill(self.pose_b, [NONE_POSE] + poses)
+
+    def add_target(self, name: str) -> None:
+        if self.target.findText(name) < 0:
+            self.target.addItem(name)
+
+    def _kind_changed(self) -> None:
+        was = self._quiet
+        self._quiet = True
+        self._fill_poses(self.kind.currentText())
+        self._quiet = was
+        self._emit()
+
+    # -------------------------------------------------------------- selection
+    def selection(self) -> Selection:
+        strat = self.strategy.currentData()
+        if strat == "identity":
+            strat = f"identity:{self.identity.currentText()}"
+        pb = self.pose_b.currentText()
+        return Selection(target=self.target.currentText(), kind=self.kind.currentText(), pose=self.pose.currentText(),
+                         pose_b=None if pb in ("", NONE_POSE) else pb, blend=self.blend.value() / 100.0,
+                         magnitude=self.magnitude.value() / 100.0, strategy=strat,
+                         colour="displacement" if self.displacement.isChecked() else "error",
+                         compare=self.compare.isChecked(), wireframe=self.wireframe.isChecked())
+
+    def set_selection(self, sel: Selection) -> None:
+        """Show a selection (e.g. a loaded session) and emit one change."""
+        self._quiet = True
+        try:
+            self.target.setCurrentText(sel.target)
+            self.kind.setCurrentText(sel.kind)
+            self._fill_poses(sel.kind)
+            self.pose.setCurrentText(sel.pose)
+            self.pose_b.setCurrentText(sel.pose_b or NONE_POSE)
+            if sel.strategy.startswith("identity:"):
+                self.strategy.setCurrentIndex(2)
+                self.identity.setCurrentText(sel.strategy.split(":", 1)[1])
+            else:
+                self.strategy.setCurrentIndex(0 if sel.strategy in ("mean", "mean_pose_delta") else 1)
+            self.magnitude.setValue(round(sel.magnitude * 100))
+            self.blend.setValue(round(sel.blend * 100))
+            self.displacement.setChecked(sel.colour == "displacement")
+            self.compare.setChecked(sel.compare)
+            self.wireframe.setChecked(sel.wireframe)
+        finally:
+            self._quiet = False
+        self._emit()
+
+    def condition_on(self, identity: str) -> None:
+        """Chosen-identity conditioning (a heatmap click)."""
+        if self.identity.findText(identity) < 0:
+            return
+        self._quiet = True
+        self.identity.setCurrentText(identity)
+        self.strategy.setCurrentIndex(2)
+        self._quiet = False
+        self._emit()
+
+    def do_reset_sliders(self) -> None:
+        self._quiet = True
+        self.magnitude.setValue(100)
+        self.blend.setValue(0)
+        self._quiet = False
+        self._emit()
+
+    def _emit(self, *args) -> None:
+        self.magnitude_label.setText(f"{self.magnitude.value() / 100:.2f}x")
+        self.blend_label.setText(f"{self.blend.value() / 100:.2f}")
+        self.identity.setEnabled(self.strategy.currentData() == "identity")
+        has_b = self.pose_b.currentText() not in ("", NONE_POSE)
+        self.blend.setEnabled(has_b)
+        if not self._quiet:
+            self.changed.emit(self.selection())

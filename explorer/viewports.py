@@ -1,0 +1,194 @@
+"""The linked 3D views: Source | Prediction (| second prediction when comparing) | Ground truth.
+
+One shared camera (moving one view moves all), front/side/reset views, wireframe, the prediction
+coloured by per-vertex error against the truth (fixed shared range, colour bar) or by displacement
+magnitude. Updates set points/scalars in place (no actor rebuild) so scrubbing stays fast.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyvista as pv
+from pyvistaqt import QtInteractor
+from PySide6.QtCore import QPoint, Qt
+from PySide6.QtGui import QImage, QPainter, QPixmap
+from PySide6.QtWidgets import QHBoxLayout, QWidget
+
+from explorer.session import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
+
+VIEW_NAMES = ("source", "prediction", "prediction_b", "truth")
+BACKGROUND = "#2b2f36"
+SKIN = "#d9c3b0"
+TRUTH = "#b7cbd9"
+
+
+def _poly(vertices: np.ndarray, faces: np.ndarray) -> pv.PolyData:
+    f = np.hstack([np.full((len(faces), 1), 3, np.int64), faces.astype(np.int64)]).ravel()
+    return pv.PolyData(np.asarray(vertices, np.float32), f)
+
+
+class ViewPanel(QWidget):
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        lay = QHBoxLayout(self)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.setSpacing(2)
+        self.plotters: dict[str, QtInteractor] = {}
+        for name in VIEW_NAMES:
+            p = QtInteractor(self, auto_update=False)
+            p.set_background(BACKGROUND)
+            p.enable_anti_aliasing("fxaa")
+            lay.addWidget(p, 1)
+            self.plotters[name] = p
+        first = self.plotters["source"]
+        for name in VIEW_NAMES[1:]:
+            first.link_views_across_plotters(self.plotters[name])
+        for p in self.plotters.values():  # shared camera: redraw the others after an interaction
+            p.iren.add_observer("InteractionEvent", self._sync_others)
+        self.plotters["prediction_b"].setVisible(False)
+        self._faces: np.ndarray | None = None
+        self._polys: dict[str, pv.PolyData] = {}
+        self._actors: dict = {}
+        self._texts: dict = {}
+        self._mode: tuple | None = None
+        self.wireframe = False
+        self.state: ViewState | None = None
+        self._camera_set = False
+
+    # -------------------------------------------------------------- drawing
+    def _sync_others(self, *args) -> None:
+        for p in self.plotters.values():
+            p.update()
+
+    def _title(self, name: str, text: str) -> None:
+        p = self.plotters[name]
+        if name in self._texts:
+            self._texts[name].SetText(2, text)  # upper left
+        else:
+            self._texts[name] = p.add_text(text, position="upper_left", font_size=8, color="white", name=f"title_{name}")
+
+    def _build(self, state: ViewState, colour: str) -> None:
+        """(Re)create the actors: new topology, colour mode or compare layout."""
+        compare = len(state.predictions) > 1
+        rng = ERROR_RANGE_MM if colour == "error" else DISPLACEMENT_RANGE_MM
+        bar_title = "error vs truth (mm)" if colour == "error" else "displacement (mm)"
+        for name, p in self.plotters.items():
+            for title in list(p.scalar_bars.keys()):
+                p.remove_scalar_bar(title)
+            p.clear_actors()
+        self._texts.clear()
+        self._polys = {n: _poly(state.source, state.faces) for n in VIEW_NAMES}
+        self._actors = {}
+        style = "wireframe" if self.wireframe else "surface"
+        self._actors["source"] = self.plotters["source"].add_mesh(self._polys["source"], color=SKIN, smooth_shading=True, style=style)
+        self._actors["truth"] = self.plotters["truth"].add_mesh(self._polys["truth"], color=TRUTH, smooth_shading=True, style=style)
+        for n in ("prediction", "prediction_b"):
+            self._polys[n].point_data["values"] = np.zeros(len(state.source), np.float32)
+            self._actors[n] = self.plotters[n].add_mesh(
+                self._polys[n], scalars="values", clim=rng, cmap="inferno" if colour == "error" else "viridis",
+                smooth_shading=True, style=style, show_scalar_bar=False)
+        bar = dict(title=bar_title, n_labels=5, fmt="%.0f", vertical=False, position_x=0.15, position_y=0.03,
+                   width=0.7, height=0.06, color="white", title_font_size=12, label_font_size=11)
+        self.plotters["prediction"].add_scalar_bar(mapper=self._actors["prediction"].mapper, **bar)
+        self.plotters["prediction_b"].setVisible(compare)
+        self._faces = state.faces
+        self._mode = (colour, compare, len(state.source), self.wireframe)
+        if not self._camera_set:
+            self.set_view("front", render=False)
+            self._camera_set = True
+
+    def show_state(self, state: ViewState, colour: str = "error") -> None:
+        """Put a prediction on screen (in place when the topology and layout are unchanged)."""
+        if colour == "error" and state.truth is None:
+            colour = "displacement"  # no truth: colour by displacement
+        compare = len(state.predictions) > 1
+        rebuilt = False
+        if (self._faces is None or self._faces is not state.faces and not np.array_equal(self._faces, state.faces)
+                or self._mode != (colour, compare, len(state.source), self.wireframe)):
+            self._build(state, colour)
+            rebuilt = True
+        prev, self.state = self.state, state
+        # only views whose content changed are re-rendered (scrubbing touches the prediction only)
+        dirty = {"prediction", "prediction_b"}
+        src_title = f"source: {state.target}" + (f" ({state.selection.kind})" if state.selection.kind != "neutral_to_pose" else "")
+        if rebuilt or prev is None or prev.source is not state.source or prev.target != state.target:
+            self._polys["source"].points = state.source
+            dirty.add("source")
+        self._title("source", src_title)
+        if rebuilt or prev is None or prev.truth is not state.truth or prev.truth_title != state.truth_title:
+            truth_actor = self._actors["truth"]
+            if state.truth is not None:
+                self._polys["truth"].points = state.truth
+                truth_actor.visibility = True
+            else:
+                self._polys["truth"].points = state.source
+                truth_actor.visibility = False
+            self._title("truth", state.truth_title)
+            dirty.add("truth")
+        for n, pred in zip(("prediction", "prediction_b"), state.predictions + [None]):
+            if pred is None:
+                continue
+            poly = self._polys[n]
+            poly.points = pred.vertices
+            vals = pred.error_mm if (colour == "error" and pred.error_mm is not None) else pred.displacement_mm
+            poly.point_data["values"][:] = vals.astype(np.float32)
+            poly.point_data["values"].Modified() if hasattr(poly.point_data["values"], "Modified") else None
+            poly.Modified()
+            self._title(n, pred.title)
+        self.render(dirty)
+
+    def render(self, which: set[str] | None = None) -> None:
+        for n, p in self.plotters.items():
+            if p.isVisible() and (which is None or n in which):
+                p.render()
+
+    # -------------------------------------------------------------- camera, style
+    def set_view(self, which: str, render: bool = True) -> None:
+        """front: looking at the character's face (from -Y); side: from its left (+X); reset: fit."""
+        p = self.plotters["source"]
+        cam = p.camera
+        if which in ("front", "side"):
+            fp = np.asarray(cam.focal_point)
+            b = self._polys["source"].bounds if "source" in self._polys else (-1, 1, -1, 1, -1, 1)
+            c = np.array([(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, (b[4] + b[5]) / 2]) if "source" in self._polys else fp
+            d = np.array([0.0, -1.0, 0.0]) if which == "front" else np.array([1.0, 0.0, 0.0])
+            cam.focal_point = tuple(c)
+            cam.position = tuple(c + 4.0 * d)
+            cam.up = (0.0, 0.0, 1.0)
+        p.reset_camera()
+        cam.zoom(1.35)
+        if render:
+            self.render()
+
+    def set_wireframe(self, on: bool) -> None:
+        self.wireframe = on
+        for a in self._actors.values():
+            a.prop.style = "wireframe" if on else "surface"
+        if self._mode is not None:
+            self._mode = self._mode[:3] + (on,)
+        self.render()
+
+    # -------------------------------------------------------------- images
+    def view_images(self) -> dict[str, np.ndarray]:
+        """(H, W, 3) uint8 renders of the visible views."""
+        return {n: p.screenshot(None, return_img=True) for n, p in self.plotters.items() if p.isVisible()}
+
+    def paint_into(self, pixmap: QPixmap, top: QWidget) -> QPixmap:
+        """Paint the rendered views over a grab of `top` (Qt cannot grab OpenGL views itself)."""
+        painter = QPainter(pixmap)
+        ratio = pixmap.devicePixelRatio()
+        for n, p in self.plotters.items():
+            if not p.isVisible():
+                continue
+            img = np.ascontiguousarray(p.screenshot(None, return_img=True)[:, :, :3])
+            h, w, _ = img.shape
+            q = QImage(img.data, w, h, 3 * w, QImage.Format.Format_RGB888).copy()
+            pos = p.mapTo(top, QPoint(0, 0))
+            target = q.scaled(int(p.width() * ratio), int(p.height() * ratio), Qt.AspectRatioMode.IgnoreAspectRatio,
+                              Qt.TransformationMode.SmoothTransformation)
+            painter.drawImage(pos, target)
+        painter.end()
+        return pixmap
+
+    def close_plotters(self) -> None:
+        for p in self.plotters.values():
+            p.close()

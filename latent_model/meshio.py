@@ -1,0 +1,387 @@
+"""The user's own mesh: import, normalisation into the model frame, and export back.
+
+The model works in anny's frame: metres, Z up, the character faces -Y, +X is the character's
+left, origin near the pelvis. A user's file may be Y-up centimetres (a Maya export), Z-up
+millimetres, etc. `load_mesh` detects the up axis and the units from the bounding box (a human
+is 1.4-2.1 m tall; flags override the guess), places the body like the model's characters,
+and stores the mapping so `export_mesh` can write the result back in the user's frame and
+units, with the input's vertex order and faces (an OBJ input is rewritten line by line, so
+groups, UVs and materials survive).
+
+Mapping (stored in `Frame`): model = scale * R @ user + offset, user = R.T @ (model - offset) / scale.
+
+Coincident vertices (seams of glTF/OBJ exports, STL triangle soup) are welded for the model;
+`UserMesh.weld_inverse` maps the welded vertices back to the file's vertices on export.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+FORMATS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+EXPORT_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+HUMAN_HEIGHT_M = (1.4, 2.1)  # what the detection expects
+SANE_HEIGHT_M = (0.5, 3.0)  # outside this after unit conversion the scale is absurd
+# Placement of the model's characters (anny neutral meshes, measured): bounding-box centre x = 0,
+# centre y = -0.13 m (the feet point to -Y), feet at z = -0.505 * stature.
+_ANNY_CENTRE_Y = -0.13
+_ANNY_FEET_PER_HEIGHT = -0.505
+
+# Y-up (character facing +Z, left hand at +X) -> Z-up facing -Y: rotate +90 deg about X.
+_R_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+_R_Z_UP = np.eye(3)
+
+
+class MeshError(ValueError):
+    """A mesh file the user gave cannot be used; the message names the file and the fix."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """model = scale * R @ user + offset (R a rotation (3, 3), scale from user units to metres)."""
+
+    up: str  # "y" | "z" (of the user's file)
+    units: str  # "m" | "cm" | "mm"
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    scale: float = 1.0
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def to_model(self, user: np.ndarray) -> np.ndarray:
+        """(V, 3) user coordinates -> (V, 3) float32 model coordinates."""
+        return (self.scale * (np.asarray(user, np.float64) @ self.R.T) + self.offset).astype(np.float32)
+
+    def to_user(self, model: np.ndarray) -> np.ndarray:
+        """(V, 3) model coordinates -> (V, 3) float64 user coordinates (inverse of to_model)."""
+        return ((np.asarray(model, np.float64) - self.offset) / self.scale) @ self.R
+
+    def describe(self) -> str:
+        return f"{self.units}, {self.up.upper()}-up"
+
+    def to_dict(self) -> dict:
+        return {"up": self.up, "units": self.units, "R": self.R.tolist(), "scale": self.scale,
+                "offset": self.offset.tolist()}
+
+
+IDENTITY_FRAME = Frame("z", "m")
+
+
+@dataclass
+class UserMesh:
+    """A mesh in the model frame plus what is needed to write results back into its file's frame.
+
+    vertices (V, 3) float32 model frame (welded), faces (F, 3) int64 into `vertices`,
+    sdf_faces: faces of the closed shells used for the SDF latent (small inner shells such as
+    eyeballs dropped), weld_inverse (N,) file vertex -> welded vertex, file_faces (F', 3) the
+    file's triangles (file vertex indices)."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    sdf_faces: np.ndarray
+    frame: Frame
+    weld_inverse: np.ndarray
+    file_faces: np.ndarray
+    source_path: Path | None = None
+    source_text: str | None = None  # the OBJ text, for a faithful rewrite on export
+
+    @property
+    def n_file_vertices(self) -> int:
+        return len(self.weld_inverse)
+
+    def summary(self) -> str:
+        h = float(np.ptp(self.vertices[:, 2]))
+        return (f"{self.name}: {self.n_file_vertices} vertices ({len(self.vertices)} welded), {len(self.faces)} triangles, "
+                f"file frame {self.frame.describe()}, stature {h:.2f} m")
+
+
+# ----------------------------------------------------------------------------- reading
+def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """(N, 3) vertices in file order, (F, 3) triangles (polygons fanned), and the text."""
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as e:
+        raise MeshError(f"{path}: cannot read the file ({e.strerror or e})") from None
+    verts: list[str] = []
+    faces: list[list[int]] = []
+    n = 0
+    for line in text.splitlines():
+        if line.startswith("v "):
+            verts.append(line[2:])
+            n += 1
+        elif line.startswith("f "):
+            idx = []
+            for tok in line[2:].split():
+                try:
+                    k = int(tok.split("/", 1)[0])
+                except ValueError:
+                    raise MeshError(f"{path}: malformed face line {line.strip()!r}; re-export the OBJ") from None
+                idx.append(k - 1 if k > 0 else n + k)
+            for j in range(1, len(idx) - 1):
+                faces.append([idx[0], idx[j], idx[j + 1]])
+    try:
+        v = np.array([s.split()[:3] for s in verts], dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        raise MeshError(f"{path}: malformed vertex line (expected 'v x y z'); re-export the OBJ") from None
+    return v, np.array(faces, dtype=np.int64).reshape(-1, 3), text
+
+
+def _read_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    try:
+        obj = trimesh.load(str(path), process=False)
+    except Exception as e:  # noqa: BLE001 - trimesh raises many kinds; all mean "unreadable"
+        raise MeshError(f"{path}: cannot read it as a {path.suffix[1:].upper()} mesh ({type(e).__name__}: {e}); "
+                        f"check the file or re-export it") from None
+    if isinstance(obj, trimesh.Scene):
+        parts = []
+        for node in obj.graph.nodes_geometry:
+            transform, name = obj.graph[node]
+            g = obj.geometry[name]
+            if isinstance(g, trimesh.Trimesh):
+                g = g.copy()
+                g.apply_transform(transform)
+                parts.append(g)
+            elif hasattr(g, "vertices"):
+                parts.append(trimesh.Trimesh(np.asarray(g.vertices), np.zeros((0, 3), np.int64), process=False))
+        if not parts:
+            return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+        vs, fs, off = [], [], 0
+        for g in parts:
+            vs.append(np.asarray(g.vertices, np.float64))
+            fs.append(np.asarray(g.faces, np.int64).reshape(-1, 3) + off)
+            off += len(g.vertices)
+        return np.concatenate(vs), np.concatenate(fs)
+    v = np.asarray(getattr(obj, "vertices", np.zeros((0, 3))), np.float64).reshape(-1, 3)
+    f = np.asarray(getattr(obj, "faces", np.zeros((0, 3))), np.int64)
+    return v, f.reshape(-1, 3) if f.size else np.zeros((0, 3), np.int64)
+
+
+def read_file(path: str | Path) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """(N, 3) float64 vertices and (F, 3) int64 triangles in the file's own frame and order,
+    and the OBJ text (None for other formats). Raises MeshError with a clear message."""
+    path = Path(path)
+    if not path.exists():
+        raise MeshError(f"{path}: no such file")
+    if path.is_dir():
+        raise MeshError(f"{path}: is a directory, not a mesh file")
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise MeshError(f"{path}: unsupported format {suffix or '(no extension)'}; use one of {', '.join(FORMATS)}")
+    if path.stat().st_size == 0:
+        raise MeshError(f"{path}: the file is empty")
+    text = None
+    if suffix == ".obj":
+        v, f, text = _read_obj(path)
+    else:
+        v, f = _read_trimesh(path)
+    return v, f, text
+
+
+# ----------------------------------------------------------------------------- checks, frame
+def _check(path: str, v: np.ndarray, f: np.ndarray) -> None:
+    if len(v) == 0:
+        raise MeshError(f"{path}: the mesh is empty (no vertices)")
+    if not np.isfinite(v).all():
+        bad = int((~np.isfinite(v).all(axis=1)).sum())
+        raise MeshError(f"{path}: {bad} vertices have NaN or infinite coordinates; fix or re-export the mesh")
+    if len(f) == 0:
+        raise MeshError(f"{path}: {len(v)} vertices but no faces: a point cloud cannot be used; "
+                        f"export the mesh with its triangles (faces)")
+    if f.min() < 0 or f.max() >= len(v):
+        raise MeshError(f"{path}: faces reference vertices that do not exist (index {int(f.max())} of {len(v)}); "
+                        f"the file is corrupt, re-export it")
+    if len(v) < 4:
+        raise MeshError(f"{path}: only {len(v)} vertices; a character mesh is needed")
+
+
+def detect_frame(vertices: np.ndarray, up: str = "auto", units: str = "auto", name: str = "mesh",
+                 placement: str = "auto") -> Frame:
+    """The mapping from a file's frame into the model's.
+
+    up: "auto" picks the larger of the Y and Z bounding-box extents (a standing human is taller
+    than deep); units: "auto" picks m/cm/mm so that the height is nearest a human's 1.4-2.1 m.
+    placement: "auto" re-centres like the model's characters unless the mesh is already Z-up
+    metres and placed like them (then it is kept), "keep" never moves it, "centre" always does.
+    Raises MeshError for an absurd scale or a bad flag."""
+    v = np.asarray(vertices, np.float64)
+    ext = np.ptp(v, axis=0)
+    if up not in ("auto", "y", "z"):
+        raise MeshError(f"up axis {up!r}: use auto, y or z")
+    if units not in ("auto", *UNITS):
+        raise MeshError(f"units {units!r}: use auto, m, cm or mm")
+    if placement not in ("auto", "keep", "centre"):
+        raise MeshError(f"placement {placement!r}: use auto, keep or centre")
+    up_axis = up if up != "auto" else ("y" if ext[1] > ext[2] else "z")
+    R = _R_Y_UP if up_axis == "y" else _R_Z_UP
+    height = float(ext[1] if up_axis == "y" else ext[2])
+    if not height > 0:
+        raise MeshError(f"{name}: the mesh is flat along its up axis ({up_axis.upper()}); pass --up if the guess is wrong")
+    if units == "auto":
+        target = np.sqrt(HUMAN_HEIGHT_M[0] * HUMAN_HEIGHT_M[1])
+        unit = min(UNITS, key=lambda u: abs(np.log(height * UNITS[u] / target)))
+    else:
+        unit = units
+    scale = UNITS[unit]
+    h_m = height * scale
+    if not SANE_HEIGHT_M[0] <= h_m <= SANE_HEIGHT_M[1]:
+        raise MeshError(f"{name}: absurd scale: the mesh is {height:.4g} units tall along {up_axis.upper()}, "
+                        f"{h_m:.4g} m in {unit}; the model expects a human of {HUMAN_HEIGHT_M[0]}-{HUMAN_HEIGHT_M[1]} m. "
+                        f"Pass --units m|cm|mm (and --up y|z) if the guess is wrong, or rescale the mesh")
+    m = scale * (v @ R.T)
+    lo, hi = m.min(axis=0), m.max(axis=0)
+    want = np.array([0.0, _ANNY_CENTRE_Y, _ANNY_FEET_PER_HEIGHT * h_m])
+    have = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+    shift = want - have
+    if placement == "keep" or (placement == "auto" and up_axis == "z" and unit == "m"
+                               and np.all(np.abs(shift) < np.array([0.05, 0.1, 0.1]))):
+        shift = np.zeros(3)
+    return Frame(up_axis, unit, R.copy(), scale, shift)
+
+
+def weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge exactly coincident vertices: (welded (W, 3), faces into welded, inverse (N,))."""
+    uniq, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    if len(uniq) == len(vertices):
+        return vertices, faces, np.arange(len(vertices))
+    # keep the welded vertices in first-occurrence order (stable, close to the file's order)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    inv = rank[inverse]
+    return vertices[first[order]], inv[faces], inv
+
+
+def sdf_shell_faces(vertices: np.ndarray, faces: np.ndarray, min_area_fraction: float = 0.02) -> np.ndarray:
+    """Faces of the shells that make up the body for the SDF: connected components holding at
+    least `min_area_fraction` of the surface (eyeballs, tongue and other small inner shells are
+    dropped; a body split into several large parts keeps them all, the winding number unites them)."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    n = len(vertices)
+    rows = np.concatenate([faces[:, 0], faces[:, 1]])
+    cols = np.concatenate([faces[:, 1], faces[:, 2]])
+    adj = scipy.sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
+    _, labels = scipy.sparse.csgraph.connected_components(adj, directed=False)
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    comp = labels[faces[:, 0]]
+    comp_area = np.bincount(comp, weights=area)
+    keep = comp_area >= min_area_fraction * comp_area.sum()
+    return np.ascontiguousarray(faces[keep[comp]])
+
+
+def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up: str = "auto",
+                units: str = "auto", placement: str = "auto", source_path: Path | None = None,
+                source_text: str | None = None) -> UserMesh:
+    """A UserMesh from arrays in some user frame (see `detect_frame`)."""
+    v = np.asarray(vertices, np.float64).reshape(-1, 3)
+    f = np.asarray(faces, np.int64).reshape(-1, 3) if np.size(faces) else np.zeros((0, 3), np.int64)
+    _check(name, v, f)
+    frame = detect_frame(v, up, units, name, placement)
+    wv, wf, inv = weld(v, f)
+    keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
+    wf = wf[keep]
+    if len(wf) == 0:
+        raise MeshError(f"{name}: every triangle is degenerate (zero area); the file is broken, re-export it")
+    mv = frame.to_model(wv)
+    return UserMesh(name, mv, wf, sdf_shell_faces(mv.astype(np.float64), wf), frame, inv, f, source_path, source_text)
+
+
+def load_mesh(path: str | Path, up: str = "auto", units: str = "auto", placement: str = "auto") -> UserMesh:
+    """Read a mesh file (OBJ, PLY, STL, GLB/GLTF, OFF) and normalise it into the model frame."""
+    path = Path(path)
+    v, f, text = read_file(path)
+    return from_arrays(v, f, path.name, up, units, placement, path, text)
+
+
+def from_identity(vertices: np.ndarray, faces: np.ndarray, name: str, sdf_faces: np.ndarray | None = None) -> UserMesh:
+    """A corpus identity's mesh (already in the model frame: identity mapping, no welding, so
+    vertex i stays vertex i and predictions compare with the rig's ground truth vertex by vertex)."""
+    v = np.asarray(vertices, np.float32)
+    f = np.asarray(faces, np.int64)
+    _check(name, v, f)
+    if sdf_faces is None:
+        from latent_model.corpus.sdf import body_component_faces
+
+        sdf_faces = body_component_faces(v.astype(np.float64), f)
+    return UserMesh(name, v, f, np.asarray(sdf_faces, np.int64), IDENTITY_FRAME, np.arange(len(v)), f)
+
+
+# ----------------------------------------------------------------------------- writing
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write via a temp file in the same directory and an atomic rename (never half-written)."""
+    path = Path(path)
+    if path.parent and not path.parent.exists():
+        raise MeshError(f"{path}: the directory {path.parent} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+_FACE_NORMAL_REF = re.compile(r"(\S+?)/(\S*?)/\S+")
+
+
+def _rewrite_obj(text: str, user_vertices: np.ndarray) -> str:
+    """The input OBJ with its `v` lines replaced (same order), stale `vn` normals dropped."""
+    out: list[str] = []
+    k = 0
+    for line in text.splitlines():
+        if line.startswith("v "):
+            x, y, z = user_vertices[k]
+            extra = line[2:].split()[3:]  # vertex colours, if any
+            out.append(f"v {x:.6f} {y:.6f} {z:.6f}" + ("".join(" " + e for e in extra)))
+            k += 1
+        elif line.startswith("vn "):
+            continue
+        elif line.startswith("f "):
+            toks = []
+            for t in line[2:].split():
+                m = _FACE_NORMAL_REF.fullmatch(t)
+                toks.append((m.group(1) + ("/" + m.group(2) if m.group(2) else "")) if m else t)
+            out.append("f " + " ".join(toks))
+        else:
+            out.append(line)
+    return "\n".join(out) + "\n"
+
+
+def export_mesh(mesh: UserMesh, model_vertices: np.ndarray, path: str | Path) -> Path:
+    """Write predicted vertices (W, 3) (model frame, welded order) in the file's frame, units and
+    vertex order. OBJ from an OBJ input keeps every non-vertex line; other formats are written by
+    trimesh. Atomic: an existing file is replaced only by a complete one."""
+    import trimesh
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in EXPORT_FORMATS:
+        raise MeshError(f"{path}: cannot export {suffix or '(no extension)'}; use one of {', '.join(EXPORT_FORMATS)}")
+    mv = np.asarray(model_vertices)
+    if mv.shape != mesh.vertices.shape:
+        raise MeshError(f"{path}: prediction has shape {mv.shape}, the mesh {mesh.vertices.shape}")
+    if not np.isfinite(mv).all():
+        raise MeshError(f"{path}: the prediction has NaN/inf vertices; nothing written")
+    user = mesh.frame.to_user(mv)[mesh.weld_inverse]
+    if suffix == ".obj" and mesh.source_text is not None:
+        data = _rewrite_obj(mesh.source_text, user).encode()
+    else:
+        tm = trimesh.Trimesh(user, mesh.file_faces, process=False)
+        data = trimesh.exchange.export.export_mesh(tm, None, file_type=suffix[1:])
+        if isinstance(data, str):
+            data = data.encode()
+    atomic_write_bytes(path, data)
+    return path

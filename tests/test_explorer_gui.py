@@ -1,0 +1,188 @@
+"""The explorer window under a real X server (Xvfb in CI: `xvfb-run -a pytest`), with pytest-qt.
+
+Skips with a reason when PySide6/pyvistaqt/pytest-qt are missing, when there is no DISPLAY, or when
+the shipped model is missing."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from latent_model.shipped import ShippedPaths
+
+if not os.environ.get("DISPLAY"):
+    pytest.skip("no DISPLAY: run the GUI tests under an X server (xvfb-run -a python -m pytest)", allow_module_level=True)
+if os.environ.get("QT_QPA_PLATFORM") == "offscreen":
+    pytest.skip("QT_QPA_PLATFORM=offscreen leaves VTK views blank; unset it and use Xvfb", allow_module_level=True)
+pytest.importorskip("PySide6", reason="PySide6 is not installed (pip install -e '.[gui]')")
+pytest.importorskip("pyvistaqt", reason="pyvistaqt is not installed (pip install -e '.[gui]')")
+pytest.importorskip("pytestqt", reason="pytest-qt is not installed (pip install -e '.[gui]')")
+if not ShippedPaths.at().checkpoint.exists() or not ShippedPaths.at().bank.exists():
+    pytest.skip(f"the shipped model is missing ({ShippedPaths.at().checkpoint.parent}); restore assets/model",
+                allow_module_level=True)
+
+from PySide6.QtCore import QPoint, Qt  # noqa: E402
+
+from explorer.session import Selection  # noqa: E402
+
+TIMEOUT = 120_000  # ms; the first load regenerates ground truth (and builds anny's cache on a fresh machine)
+BACKGROUND = np.array([0x2B, 0x2F, 0x36])
+
+
+@pytest.fixture(scope="module")
+def window(qapp):
+    import torch
+
+    from explorer.main_window import MainWindow
+    from latent_model.shipped import load_identity_specs
+
+    torch.set_num_threads(1)
+    specs, _ = load_identity_specs(ShippedPaths.at().identities)
+    target = next(s.id for s in specs if s.split == "test")
+    w = MainWindow(Selection(target=target, pose="elbowBentLf", strategy="nearest_identity_delta"))
+    w.resize(1500, 850)
+    w.show()
+    yield w
+    w.close()
+
+
+def _wait_state(qtbot, w, cond, timeout=TIMEOUT):
+    qtbot.waitUntil(lambda: w.state is not None and cond(w.state) and w.worker.idle, timeout=timeout)
+    return w.state
+
+
+def test_window_opens_with_three_views_and_heatmaps(window, qtbot):
+    st = _wait_state(qtbot, window, lambda s: True)
+    qtbot.waitUntil(lambda: window.heatmaps.data is not None, timeout=TIMEOUT)
+    v = window.views
+    assert [n for n, p in v.plotters.items() if p.isVisible()] == ["source", "prediction", "truth"]
+    assert st.truth is not None and st.prediction.error_mm is not None
+    assert "last update" in window.update_label.text()
+    assert window.heatmaps.data.target == st.target
+
+
+def test_each_slider_changes_the_prediction(window, qtbot):
+    c = window.controls
+    base = _wait_state(qtbot, window, lambda s: True).prediction.vertices.copy()
+    c.magnitude.setValue(170)
+    st = _wait_state(qtbot, window, lambda s: s.selection.magnitude == pytest.approx(1.7))
+    assert not np.allclose(st.prediction.vertices, base)
+    c.magnitude.setValue(100)
+    c.pose_b.setCurrentText("kneeBentLf")
+    assert c.blend.isEnabled()
+    before = _wait_state(qtbot, window, lambda s: s.selection.pose_b == "kneeBentLf" and s.selection.magnitude == 1.0)
+    c.blend.setValue(60)
+    st = _wait_state(qtbot, window, lambda s: s.selection.blend == pytest.approx(0.6))
+    assert not np.allclose(st.prediction.vertices, before.prediction.vertices)
+    c.do_reset_sliders()
+    st = _wait_state(qtbot, window, lambda s: s.selection.blend == 0 and s.selection.magnitude == 1.0)
+    assert np.allclose(st.prediction.vertices, before.prediction.vertices, atol=1e-6)
+
+
+def test_scrubbing_coalesces(window, qtbot):
+    c = window.controls
+    shown = len(window.update_ms)
+    for v in range(100, 200, 2):  # 50 slider steps as fast as Qt delivers them
+        c.magnitude.setValue(v)
+    st = _wait_state(qtbot, window, lambda s: s.selection.magnitude == pytest.approx(1.98))
+    assert len(window.update_ms) - shown < 50  # intermediate values were dropped, not queued
+    c.magnitude.setValue(100)
+    _wait_state(qtbot, window, lambda s: s.selection.magnitude == 1.0)
+
+
+def test_switching_strategy_changes_it(window, qtbot):
+    c = window.controls
+    c.strategy.setCurrentIndex(1)
+    near = _wait_state(qtbot, window, lambda s: s.prediction.strategy == "nearest_identity_delta")
+    c.strategy.setCurrentIndex(0)
+    mean = _wait_state(qtbot, window, lambda s: s.prediction.strategy == "mean_pose_delta")
+    assert not np.allclose(mean.prediction.vertices, near.prediction.vertices)
+    assert mean.prediction.title.startswith("mean pose delta")
+
+
+def test_compare_mode_shows_both(window, qtbot):
+    c = window.controls
+    c.compare.setChecked(True)
+    st = _wait_state(qtbot, window, lambda s: s.selection.compare)
+    assert [p.strategy for p in st.predictions] == ["mean_pose_delta", "nearest_identity_delta"]
+    assert window.views.plotters["prediction_b"].isVisible()
+    imgs = window.views.view_images()
+    assert set(imgs) == {"source", "prediction", "prediction_b", "truth"}
+    c.compare.setChecked(False)
+    _wait_state(qtbot, window, lambda s: not s.selection.compare)
+    assert not window.views.plotters["prediction_b"].isVisible()
+
+
+def test_heatmap_click_sets_conditioning(window, qtbot):
+    _wait_state(qtbot, window, lambda s: True)
+    qtbot.waitUntil(lambda: window.heatmaps.data is not None and window.worker.idle, timeout=TIMEOUT)
+    window.heatmaps.setCurrentIndex(0)
+    canvas = window.heatmaps.identity
+    data = window.heatmaps.data
+    current = window.state.conditioning
+    col = next(i for i, x in enumerate(data.ids) if x != current and x != data.target)
+    want = data.ids[col]
+    x, y = canvas.cell_centre(3, col)
+    qtbot.mouseClick(canvas, Qt.MouseButton.LeftButton, pos=QPoint(int(round(x)), int(round(y))))
+    st = _wait_state(qtbot, window, lambda s: s.selection.strategy == f"identity:{want}")
+    assert st.conditioning == want and window.controls.strategy.currentIndex() == 2
+    qtbot.waitUntil(lambda: window.heatmaps.data.conditioning == want, timeout=TIMEOUT)  # highlight follows
+
+
+def test_bad_file_shows_error_and_window_survives(window, qtbot, tmp_path):
+    bad = tmp_path / "broken.obj"
+    bad.write_text("v 0 0 0\nv nan 1 0\nv 0 1 1\nf 1 2 3\n")
+    with qtbot.waitSignal(window.error_shown, timeout=TIMEOUT) as sig:
+        window.open_path(bad)
+    assert "broken.obj" in sig.args[0] and "NaN" in sig.args[0]
+    assert window.error_dialog is not None and window.error_dialog.isVisible()
+    with qtbot.waitSignal(window.error_shown, timeout=TIMEOUT) as sig:
+        window.open_path(tmp_path / "missing.ply")
+    assert "no such file" in sig.args[0]
+    window.error_dialog.close()
+    window.controls.magnitude.setValue(130)  # still alive and predicting
+    _wait_state(qtbot, window, lambda s: s.selection.magnitude == pytest.approx(1.3))
+    window.controls.magnitude.setValue(100)
+
+
+def _view_spans(img: np.ndarray) -> list[tuple[int, int]]:
+    """Column spans of the 3D views: columns where most pixels are the views' background colour."""
+    bg = (np.abs(img[:, :, :3].astype(int) - BACKGROUND).sum(axis=2) < 12)
+    cols = bg.mean(axis=0) > 0.5
+    spans, start = [], None
+    for x, on in enumerate(list(cols) + [False]):
+        if on and start is None:
+            start = x
+        elif not on and start is not None:
+            if x - start > 60:
+                spans.append((start, x))
+            start = None
+    return spans
+
+
+def test_screenshot_has_all_three_meshes_drawn(tmp_path):
+    """The real command line: `lrr-explorer --screenshot` renders once and exits."""
+    from PIL import Image
+
+    out = tmp_path / "shot.png"
+    r = subprocess.run([sys.executable, "-m", "explorer.app", "--screenshot", str(out), "--size", "1500x850",
+                        "--pose", "kneeBentLf", "--timeout", "150"], capture_output=True, text=True, timeout=200,
+                       env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert r.returncode == 0, r.stderr[-2000:]
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape[:2] == (850, 1500)
+    spans = _view_spans(img)
+    assert len(spans) == 3, f"expected three 3D views, found column spans {spans}"
+    for x0, x1 in spans:
+        region = img[60:-60, x0:x1].astype(int)  # inside the view, away from titles and colour bar
+        diff = np.abs(region - BACKGROUND).sum(axis=2)
+        mesh = diff > 40
+        frac = mesh.mean()
+        assert 0.02 < frac < 0.6, f"view {x0}-{x1}: {frac:.3f} of its pixels are mesh"
+        black = (region.sum(axis=2) < 30).mean()
+        assert black < 0.2, f"view {x0}-{x1} is mostly black"
+        lum = region[mesh].mean(axis=1)
+        assert lum.std() > 5, f"view {x0}-{x1}: no shading on the mesh (flat colour)"
+        ys, xs = np.nonzero(mesh)
+        assert np.ptp(ys) > 0.3 * region.shape[0], f"view {x0}-{x1}: the drawn mesh is not body-sized"

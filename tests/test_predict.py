@@ -1,0 +1,79 @@
+"""`lrr predict` on a user's file, end to end through the shipped model and the Transfer API."""
+import numpy as np
+import pytest
+import trimesh
+
+from latent_model import meshio
+from latent_model.shipped import ShippedPaths
+
+pytestmark = pytest.mark.skipif(not ShippedPaths.at().checkpoint.exists() or not ShippedPaths.at().bank.exists(),
+                                reason=f"the shipped model is missing ({ShippedPaths.at().checkpoint.parent}); "
+                                       f"restore assets/model or set LRR_ASSETS")
+
+
+@pytest.fixture(scope="module")
+def maya_obj(tmp_path_factory):
+    """A held-out identity exported the way Maya would: Y-up centimetres, shifted."""
+    import torch
+
+    from latent_model.shipped import GroundTruth, load_identity_specs
+
+    torch.set_num_threads(1)
+    specs, _ = load_identity_specs(ShippedPaths.at().identities)
+    test = [s for s in specs if s.split == "test"]
+    gt = GroundTruth(test[:1])
+    v = gt.state(test[0].id, None, "neutral").astype(np.float64)
+    user = (v @ meshio._R_Y_UP) * 100.0 + np.array([30.0, 0.0, 10.0])
+    path = tmp_path_factory.mktemp("predict") / "character.obj"
+    trimesh.Trimesh(user, gt.faces, process=False).export(path)
+    return path, user
+
+
+def _run(*argv):
+    from latent_model.cli import main
+
+    return main(["predict", *map(str, argv)])
+
+
+def test_predict_writes_the_users_frame(maya_obj, tmp_path, capsys):
+    src, user = maya_obj
+    out = tmp_path / "posed.obj"
+    assert _run("--mesh", src, "--pose", "elbowBentLf", "--strategy", "nearest", "-o", out) == 0
+    printed = capsys.readouterr().out
+    assert "cm, Y-up" in printed and "conditioning: id" in printed
+    posed, faces, _ = meshio.read_file(out)
+    _, faces_in, _ = meshio.read_file(src)
+    assert posed.shape == user.shape and np.array_equal(faces, faces_in)  # same vertex order and faces
+    d = np.linalg.norm(posed - user, axis=1)  # centimetres
+    assert np.ptp(posed[:, 1]) == pytest.approx(np.ptp(user[:, 1]), rel=0.1)  # still Y-up cm (about 160 tall)
+    assert 0.05 < d.max() < 60.0  # it moved, by a plausible amount in centimetres
+    # magnitude 0 asks for no motion: a different, smaller result
+    out0 = tmp_path / "still.ply"
+    assert _run("--mesh", src, "--pose", "elbowBentLf", "--magnitude", "0", "-o", out0) == 0
+    still, _, _ = meshio.read_file(out0)
+    assert not np.allclose(still, posed)
+    # blending toward another pose changes the result
+    outb = tmp_path / "blend.obj"
+    assert _run("--mesh", src, "--pose", "elbowBentLf", "--pose-b", "kneeBentLf", "--blend", "0.5", "-o", outb) == 0
+    blended, _, _ = meshio.read_file(outb)
+    assert not np.allclose(blended, posed, atol=1e-4)
+
+
+def test_predict_errors_are_clear_and_write_nothing(maya_obj, tmp_path, capsys):
+    src, _ = maya_obj
+    out = tmp_path / "never.obj"
+    assert _run("--mesh", src, "--pose", "elbowBent", "-o", out) == 2
+    err = capsys.readouterr().err
+    assert "unknown pose 'elbowBent'" in err and "elbowBentLf" in err  # lists the valid names
+    assert _run("--mesh", tmp_path / "missing.obj", "--pose", "elbowBentLf", "-o", out) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert _run("--mesh", src, "--pose", "elbowBentLf", "--blend", "0.3", "-o", out) == 2
+    assert "--pose-b" in capsys.readouterr().err
+    assert _run("--mesh", src, "--pose", "elbowBentLf", "--strategy", "median", "-o", out) == 2
+    assert "mean_pose_delta" in capsys.readouterr().err
+    cloud = tmp_path / "cloud.ply"
+    trimesh.PointCloud(np.random.default_rng(0).normal(size=(100, 3))).export(cloud)
+    assert _run("--mesh", cloud, "--pose", "elbowBentLf", "-o", out) == 2
+    assert "point cloud" in capsys.readouterr().err
+    assert _run("--mesh", src, "--pose", "elbowBentLf", "-o", tmp_path / "x.fbx") == 2
+    assert not out.exists() and not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())
