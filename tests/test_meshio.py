@@ -142,15 +142,13 @@ def test_export_is_atomic(tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["out.ply"]  # no temp file left behind
 
 
-def test_200k_vertices_import_time(tmp_path):
-    import time
-
+def test_200k_vertices_import(tmp_path):
+    """Large meshes load and are normalised (speed is measured by bench/bench_predict.py)."""
     m = trimesh.creation.capsule(height=1.45, radius=0.15, count=[400, 500])
     v = np.asarray(m.vertices)
     v[:, 2] -= v[:, 2].min() + 0.88
     src = tmp_path / "big.ply"
     trimesh.Trimesh(v * 100, m.faces, process=False).export(src)
-    t = time.perf_counter()
     um = meshio.load_mesh(src)
     assert len(um.vertices) >= 199_000 and um.frame.units == "cm"
-    assert time.perf_counter() - t < 30  # generous: the benchmark measures the real figure
+    assert np.isfinite(um.vertices).all() and 1.4 < np.ptp(um.vertices[:, 2]) < 2.1
