@@ -8,15 +8,18 @@ Needs an X server:  xvfb-run -a python bench/bench_explorer.py [--moves 20] [--t
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the app does (explorer/app.py), before torch
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--moves", type=int, default=20)
-    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads (default 2, as the app on this machine)")
     ap.add_argument("--pose", default="elbowBentLf")
     args = ap.parse_args()
     import torch

@@ -91,7 +91,8 @@ def main() -> None:
     print(f"phase A step {ta:.3f} s (median of {args.steps}) x {p.train.a_steps} steps = {ta * p.train.a_steps / 60:.1f} min")
     print(f"phase B encoding pass: {n_rows} states x {t_enc32 / 32 * 1000:.1f} ms = {enc_total / 60:.1f} min")
     print(f"phase B step {tb:.3f} s (median of {args.steps}) x {p.train.b_steps} steps = {tb * p.train.b_steps / 60:.1f} min")
-    print(f"projected Phase A + B wall time: {total / 60:.1f} min")
+    # the few steps timed here read corpus states from a cold page cache; a real run warms it
+    print(f"projected Phase A + B wall time: {total / 60:.1f} min (upper bound: cold page cache on the corpus arrays)")
 
     # Inference targets
     model.eval()
