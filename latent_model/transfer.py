@@ -34,6 +34,7 @@ class PreparedMesh:
     normals: np.ndarray  # (V, 3)
     knn: np.ndarray  # (V, K) neighbourhoods (cached per mesh)
     mu: np.ndarray  # (Z,) posterior mean of the mesh's SDF samples
+    features: torch.Tensor | None = None  # (1, V, H) the decoder's mesh-only features, cached on first use
 
 
 def parse_strategy(text: str) -> str:
@@ -119,9 +120,13 @@ class Transfer:
             d_b, _ = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)
             d = (1.0 - blend) * d + blend * d_b
         dev = self.device
+        vd = self.model.vertex_decoder
+        v = torch.from_numpy(mesh.vertices)[None].to(dev)
+        n = torch.from_numpy(mesh.normals)[None].to(dev)
+        if mesh.features is None or mesh.features.device != torch.device(dev):
+            mesh.features = vd.mesh_features(v, n)
         direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(dev))
-        out = self.model.vertex_decoder(
-            torch.from_numpy(mesh.vertices)[None].to(dev), torch.from_numpy(mesh.normals)[None].to(dev),
-            torch.from_numpy(mesh.mu)[None].to(dev), direction, r * float(magnitude),
-            torch.tensor([PAIR_KINDS.index(kind)], device=dev), torch.from_numpy(mesh.knn)[None].to(dev))
+        out = vd(v, n, torch.from_numpy(mesh.mu)[None].to(dev), direction, r * float(magnitude),
+                 torch.tensor([PAIR_KINDS.index(kind)], device=dev), torch.from_numpy(mesh.knn)[None].to(dev),
+                 features=mesh.features)
         return out["vertices"][0].cpu().numpy()

@@ -109,3 +109,25 @@ def test_transfer_on_another_topology(setup, tiny_corpus):
     mesh = t.prepare(sub.vertices, sub.faces)
     out = t.predict(mesh, "elbowBentLf", "nearest")
     assert out.shape == (len(sub.vertices), 3) and np.isfinite(out).all()
+
+
+def test_cached_mesh_features_change_nothing(setup, tiny_corpus):
+    """The per-mesh feature cache (for slider speed) gives exactly the uncached decoder output."""
+    from latent_model.train.phases import normalised_delta
+    from latent_model.corpus.pairs import PAIR_KINDS
+
+    p, model, bank, _ = setup
+    c = tiny_corpus
+    t = Transfer(model, bank, p.corpus.sdf.k)
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=encode_states(model, c, [s])[0])
+    first = t.predict(mesh, "elbowBentLf", "mean")
+    assert mesh.features is not None
+    again = t.predict(mesh, "elbowBentLf", "mean")
+    d, r = normalised_delta(torch.from_numpy(bank.mean_delta("neutral_to_pose", "elbowBentLf"))[None])
+    with torch.no_grad():
+        direct = model.vertex_decoder(torch.from_numpy(mesh.vertices)[None], torch.from_numpy(mesh.normals)[None],
+                                      torch.from_numpy(mesh.mu)[None], d, r, torch.tensor([PAIR_KINDS.index("neutral_to_pose")]),
+                                      torch.from_numpy(mesh.knn)[None])["vertices"][0].numpy()
+    assert np.array_equal(first, again)
+    assert np.allclose(first, direct, atol=1e-6)

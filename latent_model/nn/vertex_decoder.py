@@ -113,15 +113,22 @@ class VertexDecoder(nn.Module):
         r = r.reshape(-1, 1)
         return self.cond(torch.cat([mu_src, delta_dir, r, torch.log(r + 1e-6), self.kind_emb(kind)], dim=-1))
 
+    def mesh_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> torch.Tensor:
+        """(B, V, H) per-vertex features that depend on the mesh only: a caller that predicts many
+        poses for one mesh (the explorer's sliders) computes them once."""
+        return self.vert(torch.cat([fourier_features(v_src, self.cfg.vd_fourier), n_src], dim=-1))
+
     def forward(self, v_src: torch.Tensor, n_src: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor,
-                r: torch.Tensor, kind: torch.Tensor, knn: torch.Tensor) -> dict[str, torch.Tensor]:
-        """v_src, n_src (B, V, 3); mu_src, delta_dir (B, Z); r (B,); kind (B,); knn (B, V, K).
+                r: torch.Tensor, kind: torch.Tensor, knn: torch.Tensor,
+                features: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """v_src, n_src (B, V, 3); mu_src, delta_dir (B, Z); r (B,); kind (B,); knn (B, V, K);
+        features: optional cached `mesh_features(v_src, n_src)`.
 
         Returns {"vertices": (B, V, 3), "coarse": (B, V, 3) displacement, "mask": (B, V, 1)}."""
         cfg = self.cfg
         B = v_src.shape[0]
         c = self.condition(mu_src, delta_dir, r, kind)
-        f = self.vert(torch.cat([fourier_features(v_src, cfg.vd_fourier), n_src], dim=-1))
+        f = self.mesh_features(v_src, n_src) if features is None else features
         gamma, beta = self.film(c).chunk(2, dim=-1)
         h = f * (1.0 + gamma[:, None]) + beta[:, None]
         # 1) virtual-bone coarse stage
