@@ -130,7 +130,7 @@ def transfer_example(ex: dict, faces: np.ndarray, title: str, path: Path, view: 
         if crop is not None:  # show only the region of interest (faces whose vertices all lie inside)
             inside = np.all((ex["truth"] >= crop[0]) & (ex["truth"] <= crop[1]), axis=1)
             keep_faces = faces[inside[faces].all(axis=1)]
-        draw_mesh(ax, v, keep_faces, view, values=values, cmap="inferno", vmin=0, vmax=vmax)
+        draw_mesh(ax, v, keep_faces, view, values=values, cmap="YlOrRd", vmin=0, vmax=vmax)
         label = k if values is None else f"{k}: mean {values.mean():.1f} / max {values.max():.0f} mm"
         ax.set_title(label, fontsize=8)
     fig.suptitle(f"{title} (error colour 0-{vmax:.0f} mm)", fontsize=10)
