@@ -46,7 +46,7 @@ def main() -> None:
     wait(lambda: win.is_settled())
     print(f"startup to first prediction on screen + heatmaps: {time.perf_counter() - t0:.1f} s")
     # slider -> screen, one move at a time (each waits for its prediction to be drawn)
-    lat = []
+    lat, model, draw = [], [], []
     for k in range(args.moves):
         value = 60 + (k * 37) % 140
         if value == win.controls.magnitude.value():
@@ -57,6 +57,8 @@ def main() -> None:
         wait(lambda: len(win.update_ms) > n and win.worker.idle)
         app.processEvents()  # the Qt paint of the views
         lat.append((time.perf_counter() - t) * 1000)
+        model.append(win.state.seconds * 1000)
+        draw.append(win.draw_ms[-1])
     # decoder alone
     s = win.worker.session
     sel = win.state.selection
@@ -76,6 +78,8 @@ def main() -> None:
     scrub = time.perf_counter() - t
     print(f"slider -> new prediction on screen: median {statistics.median(lat):.0f} ms "
           f"(min {min(lat):.0f}, max {max(lat):.0f}; {args.moves} moves; target <= 120 ms)")
+    print(f"  of which: model thread (Session.compute) median {statistics.median(model):.0f} ms, "
+          f"views updated + rendered median {statistics.median(draw):.0f} ms")
     print(f"vertex decoder (Transfer.predict): median {statistics.median(dec):.0f} ms (target <= 40 ms)")
     print(f"fast scrub of 50 slider steps: {scrub:.2f} s, {len(win.update_ms) - n} predictions drawn "
           f"(the rest coalesced away)")

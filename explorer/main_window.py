@@ -37,6 +37,7 @@ class MainWindow(QMainWindow):
         self.last_error: str | None = None
         self.error_dialog: QMessageBox | None = None
         self.update_ms: list[float] = []  # request -> on screen, per prediction shown
+        self.draw_ms: list[float] = []  # of which: setting the views' points and rendering them
         self._mesh_paths: dict[str, str] = {}
         self._pending_selection: Selection | None = None
         self._noise_for: str | None = None  # target whose noise floor is being computed
@@ -189,8 +190,11 @@ class MainWindow(QMainWindow):
     def _on_predicted(self, state: ViewState, t0: float) -> None:
         self.state = state
         sel = state.selection
+        t_draw = time.perf_counter()
         self.views.show_state(state, sel.colour)
-        ms = (time.perf_counter() - t0) * 1000
+        now = time.perf_counter()
+        ms = (now - t0) * 1000
+        self.draw_ms.append((now - t_draw) * 1000)
         self.update_ms.append(ms)
         self.update_label.setText(f"last update {ms:.0f} ms (model {state.seconds * 1000:.0f} ms, "
                                   f"decoder {state.seconds_decoder * 1000:.0f} ms) at {time.strftime('%H:%M:%S')}")

@@ -13,6 +13,7 @@ from typing import Callable, Generic, TypeVar
 
 import numpy as np
 
+from latent_model.corpus.sdf import vertex_normals
 from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
 
 SESSION_FORMAT = 1
@@ -150,6 +151,7 @@ class Prediction:
     vertices: np.ndarray
     error_mm: np.ndarray | None  # (V,) |pred - truth| in mm, None without truth
     displacement_mm: np.ndarray  # (V,) |pred - source| in mm
+    normals: np.ndarray | None = None  # (V, 3) unit vertex normals for shading (computed off the UI thread)
 
     @property
     def title(self) -> str:
@@ -369,7 +371,7 @@ class Session:
         _, label = self.transfer.delta(prepared, sel.pose, strategy, sel.kind)
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
-        return Prediction(strategy, label, v, err, disp), dt
+        return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces)), dt
 
     def compute(self, sel: Selection) -> ViewState:
         """Everything the views show for a selection (the one path: Transfer.prepare + predict)."""

@@ -13,6 +13,8 @@ from PySide6.QtCore import QPoint, Qt
 from PySide6.QtGui import QImage, QPainter, QPixmap
 from PySide6.QtWidgets import QHBoxLayout, QWidget
 
+from latent_model.corpus.sdf import vertex_normals
+
 from explorer.session import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
 
 VIEW_NAMES = ("source", "prediction", "prediction_b", "truth")
@@ -23,7 +25,24 @@ TRUTH = "#b7cbd9"
 
 def _poly(vertices: np.ndarray, faces: np.ndarray) -> pv.PolyData:
     f = np.hstack([np.full((len(faces), 1), 3, np.int64), faces.astype(np.int64)]).ravel()
-    return pv.PolyData(np.asarray(vertices, np.float32), f)
+    poly = pv.PolyData(np.asarray(vertices, np.float32), f)
+    _set_geometry(poly, vertices, vertex_normals(vertices, faces))
+    return poly
+
+
+def _set_geometry(poly: pv.PolyData, vertices: np.ndarray, normals: np.ndarray) -> None:
+    """Points and their shading normals, in place. We hand VTK the normals (computed with numpy,
+    for predictions in the model thread) instead of pyvista's smooth-shading filter, which re-runs
+    a Python normals pipeline on the UI thread at every render of a changed mesh."""
+    poly.points = vertices
+    poly.point_data.set_array(np.asarray(normals, np.float32), "Normals")
+    poly.point_data.active_normals_name = "Normals"
+
+
+def _add_smooth(plotter: QtInteractor, poly: pv.PolyData, **kw):
+    actor = plotter.add_mesh(poly, smooth_shading=False, **kw)
+    actor.prop.interpolation = "gouraud"  # per-vertex normals given: smooth without the filter
+    return actor
 
 
 class ViewPanel(QWidget):
@@ -79,13 +98,13 @@ class ViewPanel(QWidget):
         self._polys = {n: _poly(state.source, state.faces) for n in VIEW_NAMES}
         self._actors = {}
         style = "wireframe" if self.wireframe else "surface"
-        self._actors["source"] = self.plotters["source"].add_mesh(self._polys["source"], color=SKIN, smooth_shading=True, style=style)
-        self._actors["truth"] = self.plotters["truth"].add_mesh(self._polys["truth"], color=TRUTH, smooth_shading=True, style=style)
+        self._actors["source"] = _add_smooth(self.plotters["source"], self._polys["source"], color=SKIN, style=style)
+        self._actors["truth"] = _add_smooth(self.plotters["truth"], self._polys["truth"], color=TRUTH, style=style)
         for n in ("prediction", "prediction_b"):
             self._polys[n].point_data["values"] = np.zeros(len(state.source), np.float32)
-            self._actors[n] = self.plotters[n].add_mesh(
-                self._polys[n], scalars="values", clim=rng, cmap="inferno" if colour == "error" else "viridis",
-                smooth_shading=True, style=style, show_scalar_bar=False)
+            self._actors[n] = _add_smooth(
+                self.plotters[n], self._polys[n], scalars="values", clim=rng,
+                cmap="YlOrRd" if colour == "error" else "YlGnBu", style=style, show_scalar_bar=False)
         bar = dict(title=bar_title, n_labels=5, fmt="%.0f", vertical=False, position_x=0.15, position_y=0.03,
                    width=0.7, height=0.06, color="white", title_font_size=12, label_font_size=11)
         self.plotters["prediction"].add_scalar_bar(mapper=self._actors["prediction"].mapper, **bar)
@@ -111,16 +130,15 @@ class ViewPanel(QWidget):
         dirty = {"prediction", "prediction_b"}
         src_title = f"source: {state.target}" + (f" ({state.selection.kind})" if state.selection.kind != "neutral_to_pose" else "")
         if rebuilt or prev is None or prev.source is not state.source or prev.target != state.target:
-            self._polys["source"].points = state.source
+            _set_geometry(self._polys["source"], state.source, vertex_normals(state.source, state.faces))
             dirty.add("source")
         self._title("source", src_title)
         if rebuilt or prev is None or prev.truth is not state.truth or prev.truth_title != state.truth_title:
             truth_actor = self._actors["truth"]
             if state.truth is not None:
-                self._polys["truth"].points = state.truth
+                _set_geometry(self._polys["truth"], state.truth, vertex_normals(state.truth, state.faces))
                 truth_actor.visibility = True
             else:
-                self._polys["truth"].points = state.source
                 truth_actor.visibility = False
             self._title("truth", state.truth_title)
             dirty.add("truth")
@@ -128,7 +146,8 @@ class ViewPanel(QWidget):
             if pred is None:
                 continue
             poly = self._polys[n]
-            poly.points = pred.vertices
+            normals = pred.normals if pred.normals is not None else vertex_normals(pred.vertices, state.faces)
+            _set_geometry(poly, pred.vertices, normals)
             vals = pred.error_mm if (colour == "error" and pred.error_mm is not None) else pred.displacement_mm
             poly.point_data["values"][:] = vals.astype(np.float32)
             poly.point_data["values"].Modified() if hasattr(poly.point_data["values"], "Modified") else None
