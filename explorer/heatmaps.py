@@ -35,7 +35,8 @@ class MatrixCanvas(FigureCanvasQTAgg):
         self.labels = list(labels)
         self.fig.clear()
         self.ax = self.fig.add_subplot(111)
-        im = self.ax.imshow(m, cmap=self.cmap, vmin=self.vmin, vmax=self.vmax, interpolation="nearest")
+        # aspect "auto": the matrix fills the (tall) panel instead of floating in its middle
+        im = self.ax.imshow(m, cmap=self.cmap, vmin=self.vmin, vmax=self.vmax, interpolation="nearest", aspect="auto")
         self.fig.colorbar(im, ax=self.ax, location="bottom", shrink=0.7, aspect=30, label=cbar_label)
         n = len(labels)
         step = max(1, n // 16)
