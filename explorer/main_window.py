@@ -37,7 +37,8 @@ class MainWindow(QMainWindow):
         self.last_error: str | None = None
         self.error_dialog: QMessageBox | None = None
         self.update_ms: list[float] = []  # request -> on screen, per prediction shown
-        self.draw_ms: list[float] = []  # of which: setting the views' points and rendering them
+        self.draw_ms: list[float] = []  # of which: setting the views' points (the render follows at the paint)
+        self._on_screen_pending: tuple[float, ViewState] | None = None
         self._mesh_paths: dict[str, str] = {}
         self._pending_selection: Selection | None = None
         self._noise_for: str | None = None  # target whose noise floor is being computed
@@ -77,6 +78,7 @@ class MainWindow(QMainWindow):
         self.heatmaps.identity_clicked.connect(self.controls.condition_on)
         self.heatmaps.noise_requested.connect(self.request_noise)
         self.worker.predicted.connect(self._on_predicted)
+        self.views.on_rendered("prediction", self._prediction_rendered)
         self.worker.prediction_failed.connect(self.show_error)
         self.worker.job_progress.connect(self._on_progress)
         self.worker.job_done.connect(self._on_job_done)
@@ -192,12 +194,8 @@ class MainWindow(QMainWindow):
         sel = state.selection
         t_draw = time.perf_counter()
         self.views.show_state(state, sel.colour)
-        now = time.perf_counter()
-        ms = (now - t0) * 1000
-        self.draw_ms.append((now - t_draw) * 1000)
-        self.update_ms.append(ms)
-        self.update_label.setText(f"last update {ms:.0f} ms (model {state.seconds * 1000:.0f} ms, "
-                                  f"decoder {state.seconds_decoder * 1000:.0f} ms) at {time.strftime('%H:%M:%S')}")
+        self.draw_ms.append((time.perf_counter() - t_draw) * 1000)
+        self._on_screen_pending = (t0, state)  # timed when the prediction view's render ends
         if self.heatmaps.currentIndex() == 2 and self.heatmaps.noise_target != sel.target:
             self.request_noise()
         key = (sel.target, sel.kind, sel.pose, state.conditioning)
@@ -214,6 +212,17 @@ class MainWindow(QMainWindow):
 
             self.worker.submit("heatmaps", job)
         self.prediction_shown.emit(state)
+
+    def _prediction_rendered(self) -> None:
+        """The prediction view finished a render: the pending prediction is on screen."""
+        if self._on_screen_pending is None:
+            return
+        t0, state = self._on_screen_pending
+        self._on_screen_pending = None
+        ms = (time.perf_counter() - t0) * 1000
+        self.update_ms.append(ms)
+        self.update_label.setText(f"last update {ms:.0f} ms (model {state.seconds * 1000:.0f} ms, "
+                                  f"decoder {state.seconds_decoder * 1000:.0f} ms) at {time.strftime('%H:%M:%S')}")
 
     def _on_progress(self, name: str, msg: str, frac) -> None:
         self.progress.setVisible(True)

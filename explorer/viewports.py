@@ -153,12 +153,24 @@ class ViewPanel(QWidget):
             poly.point_data["values"].Modified() if hasattr(poly.point_data["values"], "Modified") else None
             poly.Modified()
             self._title(n, pred.title)
-        self.render(dirty)
+        self.schedule(dirty)
 
     def render(self, which: set[str] | None = None) -> None:
+        """Render now (before a screenshot or a camera change)."""
         for n, p in self.plotters.items():
             if p.isVisible() and (which is None or n in which):
                 p.render()
+
+    def schedule(self, which: set[str] | None = None) -> None:
+        """Render at the next Qt paint. A direct render() here is followed by the widget's own
+        paintEvent render anyway, so scrubbing paid for every frame twice (measured: 2 x 16 ms)."""
+        for n, p in self.plotters.items():
+            if p.isVisible() and (which is None or n in which):
+                p.update()
+
+    def on_rendered(self, name: str, callback) -> None:
+        """Call `callback()` after each finished render of view `name` (the moment it is on screen)."""
+        self.plotters[name].ren_win.AddObserver("EndEvent", lambda *_: callback())
 
     # -------------------------------------------------------------- camera, style
     def set_view(self, which: str, render: bool = True) -> None:
