@@ -14,6 +14,9 @@ import sys
 import time
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the app does (explorer/app.py), before torch
+from latent_model.runtime import keep_freed_memory  # noqa: E402
+
+keep_freed_memory()  # as the app does
 
 
 def main() -> None:

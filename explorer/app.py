@@ -17,6 +17,9 @@ from pathlib import Path
 # makes idle torch threads compete with rendering on a small CPU (measured: slider -> screen
 # 136 ms -> 105 ms with passive waiting). Must be set before torch is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+from latent_model.runtime import keep_freed_memory  # noqa: E402
+
+keep_freed_memory()  # the decoder's temporaries are reused, not page-faulted in at every slider step
 
 
 def build_parser() -> argparse.ArgumentParser:

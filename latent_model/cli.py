@@ -304,6 +304,9 @@ def main(argv: list[str] | None = None) -> int:
     from latent_model.train.checkpoint import CheckpointError
 
     args = build_parser().parse_args(argv)
+    from latent_model.runtime import keep_freed_memory
+
+    keep_freed_memory()  # large temporaries reused instead of page-faulted in at every step
     try:
         args.func(args)
     except (UserError, CorpusError, CheckpointError, BankError, UnknownPoseError, ValueError) as e:
