@@ -152,14 +152,20 @@ class Prediction:
     error_mm: np.ndarray | None  # (V,) |pred - truth| in mm, None without truth
     displacement_mm: np.ndarray  # (V,) |pred - source| in mm
     normals: np.ndarray | None = None  # (V, 3) unit vertex normals for shading (computed off the UI thread)
+    gate: float = 1.0  # the Transfer API's noise gate (1 = the decoder's output untouched)
+    signal: float = float("inf")  # conditioning delta / latent noise floor
 
     @property
     def title(self) -> str:
         name = STRATEGY_LABELS.get(self.strategy, "identity " + self.strategy.split(":", 1)[-1])
         cond = f" ({self.label})" if self.strategy != "mean_pose_delta" and not self.strategy.startswith("identity:") else ""
         if self.error_mm is not None:
-            return f"{name}{cond}\nerror mean {self.error_mm.mean():.1f} / max {self.error_mm.max():.1f} mm"
-        return f"{name}{cond}\ndisplacement mean {self.displacement_mm.mean():.1f} / max {self.displacement_mm.max():.1f} mm"
+            text = f"{name}{cond}\nerror mean {self.error_mm.mean():.1f} / max {self.error_mm.max():.1f} mm"
+        else:
+            text = f"{name}{cond}\ndisplacement mean {self.displacement_mm.mean():.1f} / max {self.displacement_mm.max():.1f} mm"
+        if self.gate < 1.0:
+            text += f"\nnoise gate {self.gate:.2f}: delta at {self.signal:.1f}x the latent noise floor"
+        return text
 
 
 @dataclass
@@ -366,12 +372,13 @@ class Session:
                  truth: np.ndarray | None) -> tuple[Prediction, float]:
         t = time.perf_counter()
         pose_b = sel.pose_b if sel.blend > 0 else None
-        v = self.transfer.predict(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
+        out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
+        v = out.vertices
         dt = time.perf_counter() - t
         _, label = self.transfer.delta(prepared, sel.pose, strategy, sel.kind)
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
-        return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces)), dt
+        return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal), dt
 
     def compute(self, sel: Selection) -> ViewState:
         """Everything the views show for a selection (the one path: Transfer.prepare + predict)."""

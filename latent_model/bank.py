@@ -37,6 +37,9 @@ class LatentBank:
     model_digest: str
     # (kind, pose) -> (source state indices, target state indices) into `mu`/`keys`
     pair_index: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] | None = None
+    # median standardised distance between the means of two independent SDF samplings of the
+    # same geometry: how long a delta made of sampling noise alone is (0 = not measured)
+    noise_floor: float = 0.0
 
     def standardise(self, mu: np.ndarray) -> np.ndarray:
         return (mu - self.mean) / self.scale
@@ -90,7 +93,7 @@ class LatentBank:
             tensors[f"tgt{n}"] = np.asarray(tgt, np.int32)
             index.append({"kind": kind, "pose": pose, "ids": ids})
         meta = {"format": str(BANK_FORMAT), "keys": json.dumps(self.keys), "index": json.dumps(index),
-                "model_digest": self.model_digest}
+                "model_digest": self.model_digest, "noise_floor": repr(float(self.noise_floor))}
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
@@ -128,7 +131,7 @@ class LatentBank:
             sources[key] = mu[src]
             pair_index[key] = (src, tgt)
         return LatentBank(mu, json.loads(meta["keys"]), t["mean"], t["scale"], deltas, sources,
-                          meta.get("model_digest", ""), pair_index)
+                          meta.get("model_digest", ""), pair_index, float(meta.get("noise_floor", 0.0)))
 
 
 def model_digest(model: torch.nn.Module) -> str:
@@ -194,4 +197,20 @@ def build_bank(model, corpus: Corpus, device: torch.device | None = None, progre
         deltas[key] = (ids, mu[ti] - mu[si])
         sources[key] = mu[si]
         pair_index[key] = (si, ti)
-    return LatentBank(mu, keys, mean, scale, deltas, sources, model_digest(model), pair_index)
+    bank = LatentBank(mu, keys, mean, scale, deltas, sources, model_digest(model), pair_index)
+    bank.noise_floor = measure_noise_floor(model, corpus, bank, device, progress=progress)
+    return bank
+
+
+NOISE_FLOOR_IDENTITIES = 32
+
+
+def measure_noise_floor(model, corpus: Corpus, bank: LatentBank, device: torch.device | None = None,
+                        progress: bool = False) -> float:
+    """Median standardised distance between the means of two independent SDF re-samplings
+    (resample 1 and 2) of the neutral state of up to 32 training identities."""
+    train = corpus.split_indices("train")[:NOISE_FLOOR_IDENTITIES]
+    states = [corpus.state(i, None, "neutral") for i in train]
+    a = bank.standardise(encode_states(model, corpus, states, device, resample=1, progress=progress))
+    b = bank.standardise(encode_states(model, corpus, states, device, resample=2, progress=progress))
+    return float(np.median(np.linalg.norm(a - b, axis=1)))

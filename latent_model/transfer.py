@@ -23,6 +23,10 @@ from latent_model.train.phases import normalised_delta
 
 STRATEGIES = ("mean_pose_delta", "nearest_identity_delta", "identity:<id>", "oracle")
 _ALIASES = {"mean": "mean_pose_delta", "nearest": "nearest_identity_delta"}
+# Noise gate, in units of the bank's noise floor (a delta of sampling noise alone is ~1): the
+# decoder's displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
+GATE_LO = 1.5
+GATE_HI = 3.0
 
 
 @dataclass
@@ -105,12 +109,33 @@ class Transfer:
         ident = s.split(":", 1)[1]
         return self.bank.identity_delta(kind, pose, ident), ident
 
-    @torch.no_grad()
+    def noise_gate(self, delta: np.ndarray) -> tuple[float, float]:
+        """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / the bank's
+        noise floor: a delta of sampling noise alone has signal ~1 (the paper's R_cond/noise).
+        Below GATE_LO the condition carries no information the decoder could use, so the honest
+        answer is no motion; above GATE_HI it passes untouched; smoothstep in between."""
+        floor = self.bank.noise_floor
+        if floor <= 0:  # a bank without a measured noise floor: no gate
+            return 1.0, float("inf")
+        signal = float(np.linalg.norm(np.asarray(delta) / self.bank.scale)) / floor
+        x = min(max((signal - GATE_LO) / (GATE_HI - GATE_LO), 0.0), 1.0)
+        return x * x * (3.0 - 2.0 * x), signal
+
     def predict(self, mesh: PreparedMesh, pose: str, strategy: str = "mean_pose_delta", magnitude: float = 1.0,
                 kind: str = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
                 oracle_target_mu: np.ndarray | None = None, oracle_target_mu_b: np.ndarray | None = None) -> np.ndarray:
-        """(V, 3) float32 predicted vertices. `blend` in [0, 1] mixes pose A's delta toward pose B's;
-        `magnitude` scales r_Δ (0 = no motion requested, 1 = as conditioned, 2 = doubled)."""
+        """(V, 3) float32 predicted vertices (`predict_detail(...).vertices`)."""
+        return self.predict_detail(mesh, pose, strategy, magnitude, kind, pose_b, blend,
+                                   oracle_target_mu, oracle_target_mu_b).vertices
+
+    @torch.no_grad()
+    def predict_detail(self, mesh: PreparedMesh, pose: str, strategy: str = "mean_pose_delta", magnitude: float = 1.0,
+                       kind: str = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
+                       oracle_target_mu: np.ndarray | None = None,
+                       oracle_target_mu_b: np.ndarray | None = None) -> "TransferOutput":
+        """The prediction with its parts. `blend` in [0, 1] mixes pose A's delta toward pose B's;
+        `magnitude` scales r_Δ (0 = no motion requested: the source exactly, 1 = as conditioned,
+        2 = doubled). The decoder's displacement is scaled by the noise gate of the delta."""
         if not np.isfinite(magnitude) or magnitude < 0:
             raise ValueError(f"magnitude must be a finite number >= 0, got {magnitude}")
         if not 0.0 <= blend <= 1.0:
@@ -119,6 +144,9 @@ class Transfer:
         if pose_b is not None and blend > 0:
             d_b, _ = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)
             d = (1.0 - blend) * d + blend * d_b
+        gate, signal = self.noise_gate(d)
+        if magnitude == 0:
+            gate = 0.0
         dev = self.device
         vd = self.model.vertex_decoder
         v = torch.from_numpy(mesh.vertices)[None].to(dev)
@@ -129,4 +157,14 @@ class Transfer:
         out = vd(v, n, torch.from_numpy(mesh.mu)[None].to(dev), direction, r * float(magnitude),
                  torch.tensor([PAIR_KINDS.index(kind)], device=dev), torch.from_numpy(mesh.knn)[None].to(dev),
                  features=mesh.features)
-        return out["vertices"][0].cpu().numpy()
+        raw = out["vertices"][0].cpu().numpy()
+        gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+        return TransferOutput(gated, raw, gate, signal)
+
+
+@dataclass
+class TransferOutput:
+    vertices: np.ndarray  # (V, 3) the prediction: source + gate * (decoder - source)
+    raw: np.ndarray  # (V, 3) the vertex decoder's output, ungated
+    gate: float  # noise gate in [0, 1] (0 also when magnitude is 0)
+    signal: float  # ||standardised delta|| / noise floor (inf without a measured floor)

@@ -12,7 +12,8 @@ from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
 from latent_model.nn.model import LatentReRig
 from latent_model.train.checkpoint import save_checkpoint
 
-STRATEGIES = ("mean", "nearest", "oracle", "no_motion", "offset_nearest", "offset_mean")
+STRATEGIES = ("mean", "nearest", "oracle", "mean_raw", "nearest_raw", "oracle_raw", "no_motion", "offset_nearest",
+              "offset_mean")
 STATS = ("n", "mean", "median", "std", "min", "max")
 
 

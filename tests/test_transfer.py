@@ -121,9 +121,9 @@ def test_cached_mesh_features_change_nothing(setup, tiny_corpus):
     t = Transfer(model, bank, p.corpus.sdf.k)
     s = c.state(c.split_indices("test")[0], None, "neutral")
     mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=encode_states(model, c, [s])[0])
-    first = t.predict(mesh, "elbowBentLf", "mean")
+    first = t.predict_detail(mesh, "elbowBentLf", "mean").raw
     assert mesh.features is not None
-    again = t.predict(mesh, "elbowBentLf", "mean")
+    again = t.predict_detail(mesh, "elbowBentLf", "mean").raw
     d, r = normalised_delta(torch.from_numpy(bank.mean_delta("neutral_to_pose", "elbowBentLf"))[None])
     with torch.no_grad():
         direct = model.vertex_decoder(torch.from_numpy(mesh.vertices)[None], torch.from_numpy(mesh.normals)[None],
@@ -131,3 +131,36 @@ def test_cached_mesh_features_change_nothing(setup, tiny_corpus):
                                       torch.from_numpy(mesh.knn)[None])["vertices"][0].numpy()
     assert np.array_equal(first, again)
     assert np.allclose(first, direct, atol=1e-6)
+
+
+def test_noise_gate(setup, tiny_corpus):
+    """The bank measures its noise floor; a delta under 1.5 floors gives exactly the source, one
+    over 3 floors the decoder's output untouched; magnitude 0 is the source exactly; the
+    prediction is always source + gate * (decoder - source)."""
+    import dataclasses
+
+    from latent_model.transfer import GATE_HI, GATE_LO
+
+    p, model, bank, path = setup
+    c = tiny_corpus
+    assert bank.noise_floor > 0 and LatentBank.load(path).noise_floor == pytest.approx(bank.noise_floor)
+    t = Transfer(model, bank, c.config.sdf.k)
+    z = np.zeros_like(bank.scale)
+    unit = bank.scale / np.linalg.norm(np.ones_like(bank.scale))  # standardised norm 1
+    assert t.noise_gate(z)[0] == 0.0
+    assert t.noise_gate(unit * bank.noise_floor * GATE_LO * 0.99)[0] == 0.0
+    assert t.noise_gate(unit * bank.noise_floor * GATE_HI * 1.01)[0] == 1.0
+    g, signal = t.noise_gate(unit * bank.noise_floor * (GATE_LO + GATE_HI) / 2)
+    assert g == pytest.approx(0.5) and signal == pytest.approx((GATE_LO + GATE_HI) / 2)
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
+    for magnitude in (0.0, 1.0):
+        o = t.predict_detail(mesh, "kneeBentLf", "nearest", magnitude=magnitude)
+        assert np.allclose(o.vertices, mesh.vertices + o.gate * (o.raw - mesh.vertices), atol=1e-6)
+        if magnitude == 0:
+            assert o.gate == 0.0 and np.array_equal(o.vertices, mesh.vertices)
+            assert not np.allclose(o.raw, mesh.vertices)  # the decoder alone would have moved it
+    # a bank without a measured floor (older files) has no gate
+    ungated = Transfer(model, dataclasses.replace(bank, noise_floor=0.0), c.config.sdf.k)
+    o = ungated.predict_detail(mesh, "kneeBentLf", "nearest")
+    assert o.gate == 1.0 and np.array_equal(o.vertices, o.raw)

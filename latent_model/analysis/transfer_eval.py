@@ -20,7 +20,9 @@ from latent_model.corpus.poses import get_pose
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.corpus.store import Corpus
 
-STRATEGIES = ("mean", "nearest", "oracle", "no_motion", "offset_nearest", "offset_mean")
+# mean/nearest/oracle: the Transfer API's output (noise-gated); *_raw: the vertex decoder's own output
+STRATEGIES = ("mean", "nearest", "oracle", "mean_raw", "nearest_raw", "oracle_raw", "no_motion", "offset_nearest",
+              "offset_mean")
 METRICS = ("err_mm", "err_moving_mm", "leak_mm", "explained", "normal")
 EXAMPLE_POSES = ("elbowBentLf", "elbowSuperBentLf", "cornerUpLf", "browDwLf+browDwRt", "kneeBentLf", "puffLf")
 
@@ -63,6 +65,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     faces = corpus.faces
     prepared: dict[int, object] = {}
     per: dict[tuple[str, str, str], list[dict]] = {}
+    gates: dict[tuple[str, str, str], list[float]] = {}
     examples: dict = {}
     example_identity = ids[0] if example_identity is None else example_identity
     pairs_by_key: dict[tuple[str, str], list[Pair]] = {}
@@ -89,10 +92,16 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                     prepared.clear()
                 prepared[row] = transfer.prepare(v_src, faces, sdf_faces=corpus.body_faces, mu=latent(s))
             mesh = prepared[row]
+            outs = {
+                "mean": transfer.predict_detail(mesh, bkey, "mean_pose_delta", kind=kind),
+                "nearest": transfer.predict_detail(mesh, bkey, "nearest_identity_delta", kind=kind),
+                "oracle": transfer.predict_detail(mesh, bkey, "oracle", kind=kind, oracle_target_mu=latent(t)),
+            }
+            for name, o in outs.items():
+                gates.setdefault((kind, pose_key(p), name), []).append(o.gate)
             preds = {
-                "mean": transfer.predict(mesh, bkey, "mean_pose_delta", kind=kind),
-                "nearest": transfer.predict(mesh, bkey, "nearest_identity_delta", kind=kind),
-                "oracle": transfer.predict(mesh, bkey, "oracle", kind=kind, oracle_target_mu=latent(t)),
+                **{name: o.vertices for name, o in outs.items()},
+                **{f"{name}_raw": o.raw for name, o in outs.items()},
                 "no_motion": v_src,
                 "offset_nearest": v_src + offsets[near[p.identity]],
                 "offset_mean": v_src + mean_offset,
@@ -110,6 +119,8 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     for (kind, pose, strat), rows in per.items():
         for k in METRICS:
             m[f"transfer.{kind}.{pose}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
+    for (kind, pose, strat), g in gates.items():
+        m[f"transfer.{kind}.{pose}.{strat}.gate"] = float(np.mean(g))
     # group means (per pair kind, pose group, strategy)
     groups: dict[tuple[str, str, str], list[dict]] = {}
     for (kind, pose, strat), rows in per.items():
