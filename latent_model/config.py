@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,6 +105,10 @@ class ModelConfig:
     vd_edge: int = 32  # edge-feature width of the refinement stages
     vd_stages: int = 4
     vd_detail: bool = True  # residual detail branch
+    # The unit direction of a 512-d delta has components ~0.04 against ~0.3 of mu_src: scaled by
+    # this gain (sqrt(Z) in every preset: unit-RMS components) it is no longer drowned in the
+    # condition MLP's first layer. 1.0 is the behaviour of checkpoints written before the field.
+    vd_dir_gain: float = 1.0
     n_pair_kinds: int = 4
 
 
@@ -120,6 +125,9 @@ class LossWeights:
     contrast: float = 0.1
     contrast_temperature: float = 0.1
     pos: float = 1.0
+    # per-pair RMSE relative to the pair's own motion (+2 mm): small pairs (correctives, faces,
+    # fingers) count, so the decoder learns to keep still where the truth barely moves
+    pos_rel: float = 0.02
     knn: float = 0.5
     knn_delta: float = 0.5
     static: float = 0.5
@@ -177,19 +185,19 @@ def preset(name: str) -> Preset:
     n_train = corpus.n_identities - corpus.n_test
     n_poses = len(corpus.pose_names())
     if name == "tiny":
-        model = ModelConfig(latent=32, enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64,
+        model = ModelConfig(latent=32, vd_dir_gain=math.sqrt(32), enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64,
                             sdf_layers=4, n_identities=n_train, n_poses=n_poses, vd_hidden=16, vd_cond=32,
                             vd_bones=4, vd_knn=6, vd_edge=8)
         train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
                             b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
         return Preset(name, corpus, model, train)
     if name == "standard":
-        model = ModelConfig(n_identities=n_train, n_poses=n_poses)
+        model = ModelConfig(n_identities=n_train, n_poses=n_poses, vd_dir_gain=math.sqrt(512))
         # sized for <= 90 min on 2 CPU cores (bench/bench_train.py): A ~0.3 s/step, B ~0.7-0.9 s/step
         train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=2500)
         return Preset(name, corpus, model, train)
     if name == "paper":
-        model = ModelConfig(enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
+        model = ModelConfig(vd_dir_gain=math.sqrt(512), enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
                             n_identities=n_train, n_poses=n_poses, vd_hidden=128, vd_cond=256, vd_bones=32, vd_knn=12, vd_edge=64)
         train = TrainConfig(a_steps=20000, a_identities=8, a_poses=8, a_enc_points=8192, a_query_points=2048,
                             b_steps=20000, b_batch=8)

@@ -9,7 +9,9 @@ import sys
 _M_TRIM_THRESHOLD = -1
 _M_TOP_PAD = -2
 _M_MMAP_THRESHOLD = -3
-_MAX_THRESHOLD = 2**31 - 1  # mallopt takes an int
+MMAP_THRESHOLD = 64 << 20  # bytes: allocations below this come from the heap
+TRIM_THRESHOLD = 512 << 20  # free heap top kept before it is given back
+TOP_PAD = 64 << 20
 
 
 def keep_freed_memory() -> bool:
@@ -26,7 +28,10 @@ def keep_freed_memory() -> bool:
         mallopt = libc.mallopt
     except (OSError, AttributeError):  # not glibc (e.g. musl)
         return False
-    ok = mallopt(_M_MMAP_THRESHOLD, _MAX_THRESHOLD) == 1
-    ok &= mallopt(_M_TRIM_THRESHOLD, _MAX_THRESHOLD) == 1
-    ok &= mallopt(_M_TOP_PAD, 256 << 20) == 1
+    # Bounded: blocks up to 64 MB come from the heap and are reused; larger ones are still mapped
+    # and returned. Unbounded settings (everything from the heap, never trimmed) fragmented the heap
+    # of `lrr bank` to a 19.8 GB peak (measured).
+    ok = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
+    ok &= mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1
+    ok &= mallopt(_M_TOP_PAD, TOP_PAD) == 1
     return bool(ok)

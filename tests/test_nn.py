@@ -138,3 +138,40 @@ def test_vertex_decoder_learns_several_pairs_at_once(tiny_corpus):
     with torch.no_grad():
         last = net(b)[1]["pos"].item()
     assert last < no_motion / 3, f"vertex RMSE {last * 1000:.2f} mm vs {no_motion * 1000:.2f} mm without motion"
+
+
+def test_pos_rel_weighs_each_pair_by_its_own_motion():
+    """pos_rel = mean over pairs of RMSE / (RMS true motion + 2 mm): 1 mm of leakage on a still pair
+    costs 0.5, the same 1 mm error on a pair moving 98 mm costs 0.01; pos (batch RMSE) barely sees it."""
+    from latent_model.nn import losses
+
+    V = 50
+    src = torch.zeros(2, V, 3)
+    tgt = src.clone()
+    tgt[1, :, 0] = 0.098  # pair 1 moves 98 mm, pair 0 is still
+    pred = tgt.clone()
+    pred[:, :, 1] += 0.001  # 1 mm off everywhere, on both pairs
+    knn = torch.from_numpy(knn_graph(np.random.default_rng(0).normal(size=(V, 3)), 4))[None].repeat(2, 1, 1)
+    t = losses.vertex_losses(pred, src, tgt, knn, None, preset("tiny").loss)
+    assert t["pos_rel"].item() == pytest.approx((0.001 / 0.002 + 0.001 / 0.100) / 2, rel=1e-4)
+    assert t["pos"].item() == pytest.approx(0.001, rel=1e-4)
+
+
+def test_direction_gain_defaults_to_the_old_behaviour_for_old_checkpoints(tiny):
+    """Checkpoints written before vd_dir_gain load with gain 1 (what they were trained with); presets use sqrt(Z)."""
+    import dataclasses
+
+    from latent_model.config import ModelConfig, Preset
+
+    p = tiny[0]
+    assert p.model.vd_dir_gain == pytest.approx(np.sqrt(p.model.latent))
+    d = p.to_dict()
+    del d["model"]["vd_dir_gain"]
+    assert Preset.from_dict(d).model.vd_dir_gain == 1.0
+    m = LatentReRig(p.model).vertex_decoder
+    m1 = LatentReRig(dataclasses.replace(p.model, vd_dir_gain=1.0)).vertex_decoder
+    m1.load_state_dict(m.state_dict())
+    mu, direction = torch.randn(1, p.model.latent), torch.randn(1, p.model.latent)
+    r, kind = torch.ones(1), torch.zeros(1, dtype=torch.long)
+    assert not torch.allclose(m.condition(mu, direction, r, kind), m1.condition(mu, direction, r, kind))
+    assert ModelConfig().vd_dir_gain == 1.0

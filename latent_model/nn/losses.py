@@ -7,6 +7,7 @@ import torch.nn.functional as F
 from latent_model.nn.vertex_decoder import gather_neighbours
 
 STATIC_THRESHOLD = 0.001  # metres: a vertex whose true displacement is below this is "static"
+REL_FLOOR = 0.002  # metres added to a pair's motion in pos_rel, so still pairs do not divide by ~0
 
 
 # ----------------------------------------------------------------------------- L_SDF
@@ -72,6 +73,10 @@ def vertex_losses(pred: torch.Tensor, src: torch.Tensor, tgt: torch.Tensor, knn:
     # decoder never left that point. The squared form's optimum is the mean, whose gradient
     # pulls the prediction toward using the condition.
     out["pos"] = (pred - tgt).square().sum(dim=-1).mean().clamp(min=1e-12).sqrt()
+    if weights.pos_rel > 0:
+        rmse = (pred - tgt).square().sum(dim=-1).mean(dim=1).clamp(min=1e-12).sqrt()  # (B,)
+        motion = d.square().sum(dim=-1).mean(dim=1).sqrt()
+        out["pos_rel"] = (rmse / (motion + REL_FLOOR)).mean()
     e_hat = gather_neighbours(pred, knn) - pred[:, :, None]
     e = gather_neighbours(tgt, knn) - tgt[:, :, None]
     out["knn"] = (e_hat.norm(dim=-1) - e.norm(dim=-1)).abs().mean()

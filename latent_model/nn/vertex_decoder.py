@@ -111,7 +111,7 @@ class VertexDecoder(nn.Module):
     def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
         """(B, Z), (B, Z), (B,), (B,) long -> (B, C)."""
         r = r.reshape(-1, 1)
-        return self.cond(torch.cat([mu_src, delta_dir, r, torch.log(r + 1e-6), self.kind_emb(kind)], dim=-1))
+        return self.cond(torch.cat([mu_src, delta_dir * self.cfg.vd_dir_gain, r, torch.log(r + 1e-6), self.kind_emb(kind)], dim=-1))
 
     def mesh_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> torch.Tensor:
         """(B, V, H) per-vertex features that depend on the mesh only: a caller that predicts many
