@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from latent_model.config import default_corpus_dir, preset  # noqa: E402
+from latent_model.runtime import keep_freed_memory  # noqa: E402
 from latent_model.corpus.store import Corpus  # noqa: E402
 from latent_model.nn.model import LatentReRig  # noqa: E402
 from latent_model.nn.vertex_decoder import knn_graph  # noqa: E402
@@ -41,6 +42,7 @@ def timed(fn, n: int, warm: int = 1) -> list[float]:
 
 
 def main() -> None:
+    keep_freed_memory()  # as `lrr` does
     ap = argparse.ArgumentParser()
     ap.add_argument("--preset", default="standard")
     ap.add_argument("--corpus")
