@@ -375,7 +375,7 @@ class Session:
         out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
         v = out.vertices
         dt = time.perf_counter() - t
-        _, label = self.transfer.delta(prepared, sel.pose, strategy, sel.kind)
+        label = out.label
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
         return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal), dt

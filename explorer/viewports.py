@@ -23,10 +23,10 @@ SKIN = "#d9c3b0"
 TRUTH = "#b7cbd9"
 
 
-def _poly(vertices: np.ndarray, faces: np.ndarray) -> pv.PolyData:
+def _poly(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> pv.PolyData:
     f = np.hstack([np.full((len(faces), 1), 3, np.int64), faces.astype(np.int64)]).ravel()
     poly = pv.PolyData(np.asarray(vertices, np.float32), f)
-    _set_geometry(poly, vertices, vertex_normals(vertices, faces))
+    _set_geometry(poly, vertices, normals)
     return poly
 
 
@@ -95,7 +95,8 @@ class ViewPanel(QWidget):
                 p.remove_scalar_bar(title)
             p.clear_actors()
         self._texts.clear()
-        self._polys = {n: _poly(state.source, state.faces) for n in VIEW_NAMES}
+        normals = vertex_normals(state.source, state.faces)
+        self._polys = {n: _poly(state.source, state.faces, normals) for n in VIEW_NAMES}
         self._actors = {}
         style = "wireframe" if self.wireframe else "surface"
         self._actors["source"] = _add_smooth(self.plotters["source"], self._polys["source"], color=SKIN, style=style)
@@ -129,7 +130,7 @@ class ViewPanel(QWidget):
         # only views whose content changed are re-rendered (scrubbing touches the prediction only)
         dirty = {"prediction", "prediction_b"}
         src_title = f"source: {state.target}" + (f" ({state.selection.kind})" if state.selection.kind != "neutral_to_pose" else "")
-        if rebuilt or prev is None or prev.source is not state.source or prev.target != state.target:
+        if not rebuilt and (prev is None or prev.source is not state.source or prev.target != state.target):
             _set_geometry(self._polys["source"], state.source, vertex_normals(state.source, state.faces))
             dirty.add("source")
         self._title("source", src_title)
@@ -142,6 +143,8 @@ class ViewPanel(QWidget):
                 truth_actor.visibility = False
             self._title("truth", state.truth_title)
             dirty.add("truth")
+        if rebuilt:
+            dirty.add("source")
         for n, pred in zip(("prediction", "prediction_b"), state.predictions + [None]):
             if pred is None:
                 continue

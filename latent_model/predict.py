@@ -81,8 +81,8 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose
     prepared = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
     t1 = time.perf_counter()
     try:
-        _, label = transfer.delta(prepared, pose, strategy, kind)
-        out = transfer.predict(prepared, pose, strategy, magnitude, kind, pose_b, blend)
+        result = transfer.predict_detail(prepared, pose, strategy, magnitude, kind, pose_b, blend)
+        out, label = result.vertices, result.label
     except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
         raise PredictError(str(e).strip("'\"")) from None
     return out, label, t1 - t0, time.perf_counter() - t1

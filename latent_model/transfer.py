@@ -140,7 +140,7 @@ class Transfer:
             raise ValueError(f"magnitude must be a finite number >= 0, got {magnitude}")
         if not 0.0 <= blend <= 1.0:
             raise ValueError(f"blend must lie in [0, 1], got {blend}")
-        d, _ = self.delta(mesh, pose, strategy, kind, oracle_target_mu)
+        d, label = self.delta(mesh, pose, strategy, kind, oracle_target_mu)
         if pose_b is not None and blend > 0:
             d_b, _ = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)
             d = (1.0 - blend) * d + blend * d_b
@@ -159,7 +159,7 @@ class Transfer:
                  features=mesh.features)
         raw = out["vertices"][0].cpu().numpy()
         gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
-        return TransferOutput(gated, raw, gate, signal)
+        return TransferOutput(gated, raw, gate, signal, label)
 
 
 @dataclass
@@ -168,3 +168,4 @@ class TransferOutput:
     raw: np.ndarray  # (V, 3) the vertex decoder's output, ungated
     gate: float  # noise gate in [0, 1] (0 also when magnitude is 0)
     signal: float  # ||standardised delta|| / noise floor (inf without a measured floor)
+    label: str  # where pose A's delta came from: "mean", an identity id or "oracle"
