@@ -11,6 +11,8 @@ from matplotlib.patches import Rectangle
 from PySide6.QtCore import Signal
 from PySide6.QtWidgets import QLabel, QTabWidget, QVBoxLayout, QWidget
 
+from latent_model.transfer import GATE_HI, GATE_LO
+
 from explorer.session import HeatmapData, NoiseFloor
 
 TARGET_COLOUR = "#00e5ff"
@@ -90,6 +92,9 @@ class NoiseCanvas(FigureCanvasQTAgg):
             ax.annotate(p, (a, b), fontsize=6, xytext=(2, 2), textcoords="offset points")
         hi = max(float(x.max(initial=1)), float(y.max(initial=1))) * 1.1
         ax.plot([0, hi], [0, hi], "k--", lw=0.8, label="R_cond/noise = 1")
+        # the Transfer API's noise gate: no motion under GATE_LO, the decoder's output untouched over GATE_HI
+        ax.plot([0, hi / GATE_LO], [0, hi], ":", color="#d62728", lw=0.9, label=f"R = {GATE_LO:g}: gate closed below")
+        ax.plot([0, hi / GATE_HI], [0, hi], ":", color="#2ca02c", lw=0.9, label=f"R = {GATE_HI:g}: gate open above")
         ax.set_xlim(0, hi)
         ax.set_ylim(0, hi)
         ax.set_xlabel("d_noise: two SDF samplings of the posed state", fontsize=7)
@@ -144,7 +149,8 @@ class HeatmapPanel(QTabWidget):
     def show_noise(self, nf: NoiseFloor) -> None:
         self.noise_target = nf.target
         self.noise_note.setText(f"Noise floor of {nf.target}: points above the dashed line carry a pose signal "
-                                f"larger than SDF-resampling noise (the paper's R_cond/noise).")
+                                f"larger than SDF-resampling noise (the paper's R_cond/noise); the dotted lines "
+                                f"bound the predictions' noise gate.")
         self.noise.plot(nf)
 
     def noise_message(self, text: str) -> None:
