@@ -268,7 +268,7 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
                          "yes" if best_raw <= m[f"{base}.no_motion.err_mm"] else "NO"])
     out += ["### Corrective pairs (skinning → skinning+blendshape), err mm", "",
             _table(["pose", "no motion", "mean", "nearest", "oracle", "mean raw", "nearest raw", "offset nearest",
-                    "gate mean", "gate nearest", "not worse than no motion", "raw: not worse"], rows), ""]
+                    "gate mean", "gate nearest", "better of mean/nearest not worse than no motion", "raw: not worse"], rows), ""]
     out += ["## 7. Rendered predictions", "", "source | mean | nearest | truth; predictions coloured by per-vertex error.", ""]
     out += [f"![{kind} {pose}]({path.name})" for kind, pose, path in ex_figs]
     return "\n".join(out) + "\n"
