@@ -13,10 +13,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from latent_model.meshio import EXPORT_FORMATS, MeshError, UserMesh, export_mesh, load_mesh
+
+if TYPE_CHECKING:
+    from latent_model.transfer import TransferOutput
 
 
 class PredictError(ValueError):
@@ -63,8 +67,9 @@ def load_transfer(checkpoint: str | Path | None = None, bank: str | Path | None 
 
 def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose_delta", magnitude: float = 1.0,
                  kind: str = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
-                 seed: int = 0) -> tuple[np.ndarray, str, float, float]:
-    """(vertices (W, 3), conditioning label, prepare seconds, predict seconds) of a loaded mesh."""
+                 seed: int = 0) -> tuple["TransferOutput", float, float]:
+    """(the Transfer output: vertices (W, 3), conditioning label, noise gate...; prepare seconds,
+    predict seconds) of a loaded mesh."""
     from latent_model.transfer import parse_strategy
 
     check_pose(transfer, pose, kind)
@@ -82,10 +87,9 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose
     t1 = time.perf_counter()
     try:
         result = transfer.predict_detail(prepared, pose, strategy, magnitude, kind, pose_b, blend)
-        out, label = result.vertices, result.label
     except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
         raise PredictError(str(e).strip("'\"")) from None
-    return out, label, t1 - t0, time.perf_counter() - t1
+    return result, t1 - t0, time.perf_counter() - t1
 
 
 def add_arguments(p) -> None:
@@ -112,12 +116,16 @@ def run_cli(args) -> None:
     mesh = load_mesh(args.mesh, up=args.up, units=args.units)
     t_load = time.perf_counter() - t0
     transfer = load_transfer(args.checkpoint, args.bank)
-    verts, label, t_prep, t_pred = predict_file(transfer, mesh, args.pose, args.strategy, args.magnitude,
-                                                args.kind, args.pose_b, args.blend)
+    result, t_prep, t_pred = predict_file(transfer, mesh, args.pose, args.strategy, args.magnitude,
+                                          args.kind, args.pose_b, args.blend)
+    verts, label = result.vertices, result.label
     export_mesh(mesh, verts, out)
     disp = np.linalg.norm(verts - mesh.vertices, axis=1) * 1000
     what = args.pose + (f" -> {args.pose_b} ({args.blend:g})" if args.pose_b and args.blend > 0 else "")
     print(f"{mesh.summary()}")
     print(f"{what}, strategy {args.strategy} (conditioning: {label}), magnitude {args.magnitude:g}: "
           f"displacement mean {disp.mean():.1f} mm, max {disp.max():.1f} mm")
+    if result.gate < 1.0:
+        print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x the latent noise floor "
+              f"(below 1.5x it carries no usable signal and the prediction keeps the source)")
     print(f"wrote {out} (import {t_load:.2f} s, encode {t_prep:.2f} s, predict {t_pred:.2f} s)")
