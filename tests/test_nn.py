@@ -168,10 +168,62 @@ def test_direction_gain_defaults_to_the_old_behaviour_for_old_checkpoints(tiny):
     d = p.to_dict()
     del d["model"]["vd_dir_gain"]
     assert Preset.from_dict(d).model.vd_dir_gain == 1.0
-    m = LatentReRig(p.model).vertex_decoder
-    m1 = LatentReRig(dataclasses.replace(p.model, vd_dir_gain=1.0)).vertex_decoder
+    plain = dataclasses.replace(p.model, vd_whiten=False)  # the gain is what an unwhitened decoder reads
+    m = LatentReRig(plain).vertex_decoder
+    m1 = LatentReRig(dataclasses.replace(plain, vd_dir_gain=1.0)).vertex_decoder
     m1.load_state_dict(m.state_dict())
     mu, direction = torch.randn(1, p.model.latent), torch.randn(1, p.model.latent)
     r, kind = torch.ones(1), torch.zeros(1, dtype=torch.long)
     assert not torch.allclose(m.condition(mu, direction, r, kind), m1.condition(mu, direction, r, kind))
     assert ModelConfig().vd_dir_gain == 1.0
+
+
+def test_direction_whitening_pulls_nearly_parallel_deltas_apart():
+    """Two poses whose raw directions nearly coincide (cos 0.97, as kneeBentLf/Rt) among dominant
+    ones: after the ZCA preconditioner they are far apart, and the training directions come out
+    decorrelated at unit scale. Fails if the whitening is skipped or mis-scaled."""
+    import dataclasses
+
+    Z = 16
+    cfg = dataclasses.replace(preset("tiny").model, latent=Z, vd_whiten=True)
+    vd = LatentReRig(cfg).vertex_decoder
+    g = torch.Generator().manual_seed(0)
+    base = torch.randn(Z, generator=g)
+    a = base + 0.25 * torch.randn(Z, generator=g)
+    b = base + 0.25 * torch.randn(Z, generator=g)
+    assert torch.nn.functional.cosine_similarity(a, b, dim=0) > 0.9
+    samples = torch.cat([a + 0.02 * torch.randn(200, Z, generator=g), b + 0.02 * torch.randn(200, Z, generator=g),
+                         torch.randn(400, Z, generator=g) * torch.linspace(3, 0.1, Z)])
+    u = torch.nn.functional.normalize(samples, dim=-1)
+    vd.set_direction_whitening(u, eps_rel=1e-3)
+    w = vd.dir_whiten
+    wa, wb = torch.nn.functional.normalize(a, dim=0) @ w, torch.nn.functional.normalize(b, dim=0) @ w
+    assert torch.nn.functional.cosine_similarity(wa, wb, dim=0) < 0.5
+    moment = (u @ w).T @ (u @ w) / len(u)
+    eig = torch.linalg.eigvalsh(moment)
+    assert eig.max() / eig.min() < 5.0  # raw: > 100
+    assert moment.diagonal().mean().item() == pytest.approx(1.0, rel=1e-3)
+
+
+def test_basis_branch_is_silent_at_start_and_saved(tmp_path):
+    """The bilinear basis adds nothing before training (zero coefficients) and round-trips, as does
+    the whitening buffer; configs without the fields (older checkpoints) get neither."""
+    import dataclasses
+
+    from latent_model.config import Preset
+
+    p = preset("tiny")
+    p2 = dataclasses.replace(p, model=dataclasses.replace(p.model, vd_basis=5, vd_whiten=True))
+    torch.manual_seed(0)
+    m = LatentReRig(p2.model)
+    assert m.vertex_decoder.basis_coef.weight.abs().sum() == 0
+    m.vertex_decoder.dir_whiten.mul_(2.0)
+    path = tmp_path / "b.safetensors"
+    save_checkpoint(path, m, p2, "b", 1)
+    m2, stored, _ = load_checkpoint(path)
+    assert stored.model.vd_basis == 5 and torch.equal(m2.vertex_decoder.dir_whiten, m.vertex_decoder.dir_whiten)
+    d = p.to_dict()
+    del d["model"]["vd_basis"], d["model"]["vd_whiten"]
+    old = Preset.from_dict(d).model
+    assert old.vd_basis == 0 and not old.vd_whiten
+    assert not hasattr(LatentReRig(old).vertex_decoder, "basis")

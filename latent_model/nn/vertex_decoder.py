@@ -7,6 +7,8 @@ Five parts, as in the paper:
 3. a per-vertex latent-delta mask that gates where the global signal acts;
 4. four local KNN refinement stages (edge convolutions over source-mesh neighbourhoods);
 5. a residual detail branch for small localised components (correctives).
+Beyond the paper, an optional bilinear deformation basis (`vd_basis` > 0): K displacement fields
+read from the mesh features alone, mixed by K coefficients of the condition (see `forward`).
 No layer is sized by the vertex count, so any mesh works; neighbourhoods are computed per
 mesh (`knn_graph`) and can be cached by the caller.
 """
@@ -106,12 +108,37 @@ class VertexDecoder(nn.Module):
             self.detail_out = nn.Linear(H, 4)
             nn.init.zeros_(self.detail_out.weight)
             nn.init.zeros_(self.detail_out.bias)
+        if cfg.vd_basis:
+            self.basis = mlp([H, H, 3 * cfg.vd_basis])
+            self.basis_coef = nn.Linear(cfg.latent, cfg.vd_basis, bias=False)
+            nn.init.zeros_(self.basis_coef.weight)
         self.register_buffer("identity6d", torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0]))
+        if cfg.vd_whiten:
+            # set from the training deltas before Phase B (`set_direction_whitening`), saved with the model
+            self.register_buffer("dir_whiten", torch.eye(cfg.latent) * cfg.vd_dir_gain)
+
+    @torch.no_grad()
+    def set_direction_whitening(self, directions: torch.Tensor, eps_rel: float = 1e-3) -> None:
+        """ZCA preconditioner of the delta direction from training directions (N, Z): the
+        first condition layer then sees decorrelated, unit-scale inputs. The same function class
+        (a fixed linear map before a linear layer), but poses whose raw deltas nearly coincide
+        (cos 0.97 for kneeBentLf/Rt) become far apart (cos 0.65), which the optimiser needs
+        on a CPU step budget. eps_rel caps the gain of near-empty directions at 1/sqrt(eps_rel)."""
+        u = directions.double()
+        lam, vec = torch.linalg.eigh(u.T @ u / len(u))
+        lam = lam.clamp(min=0) + eps_rel * lam.max()
+        w = vec @ torch.diag(lam.rsqrt()) @ vec.T
+        w = w * (u.shape[1] / (u @ w).square().sum(-1).mean()).sqrt()  # unit-RMS components on average
+        self.dir_whiten.copy_(w.float())
+
+    def direction_input(self, delta_dir: torch.Tensor) -> torch.Tensor:
+        """(B, Z) unit direction -> what the network reads: whitened, or scaled by the gain."""
+        return delta_dir @ self.dir_whiten if self.cfg.vd_whiten else delta_dir * self.cfg.vd_dir_gain
 
     def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
         """(B, Z), (B, Z), (B,), (B,) long -> (B, C)."""
         r = r.reshape(-1, 1)
-        return self.cond(torch.cat([mu_src, delta_dir * self.cfg.vd_dir_gain, r, torch.log(r + 1e-6), self.kind_emb(kind)], dim=-1))
+        return self.cond(torch.cat([mu_src, self.direction_input(delta_dir), r, torch.log(r + 1e-6), self.kind_emb(kind)], dim=-1))
 
     def mesh_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> torch.Tensor:
         """(B, V, H) per-vertex features that depend on the mesh only: a caller that predicts many
@@ -149,6 +176,13 @@ class VertexDecoder(nn.Module):
         # knee and shoulder poses predicted no motion after 1500 steps).
         m = 0.05 + 0.95 * torch.sigmoid(self.mask(h) + 2.0)
         d = m * coarse + self.direct(h) * 0.1
+        if cfg.vd_basis:
+            # Bilinear basis: sum_k a_k B_k(f_v) with a = A (direction input) * r, linear in the
+            # delta. The fields see the mesh only (shared by every identity) and the mix is the
+            # delta itself, so no delta gives no motion and composed deltas add their motions.
+            coef = self.basis_coef(self.direction_input(delta_dir)) * (0.1 * r.reshape(-1, 1))
+            fields = self.basis(f).reshape(B, -1, cfg.vd_basis)  # (B, V*3, K): one bmm, no einsum copies
+            d = d + torch.bmm(fields, coef[:, :, None]).reshape(B, -1, 3) * 0.1
         # 3) local KNN refinement
         g = h
         for stage, out in zip(self.stages, self.stage_out):

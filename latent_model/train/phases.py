@@ -113,6 +113,13 @@ def encode_rows(model: LatentReRig, corpus: Corpus, rows: list[int], device: tor
     return out
 
 
+def training_directions(sampler: PhaseBSampler, corpus: Corpus, mu_rows: torch.Tensor) -> torch.Tensor:
+    """(N, Z) unit delta directions of every training pair (all kinds), the ones Phase B sees."""
+    idx = torch.tensor([[corpus.row(s) for s in sampler.states(p)] for pairs in sampler.by_kind.values() for p in pairs])
+    direction, r = normalised_delta(mu_rows[idx[:, 1]] - mu_rows[idx[:, 0]])
+    return direction[r > 0]
+
+
 def freeze_encoder(model: LatentReRig) -> None:
     """Phase B: the encoder (and Phase A parts) are frozen and in eval mode."""
     for part in (model.encoder, model.sdf_decoder, model.char_head, model.pose_head):
@@ -129,6 +136,8 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
     sampler = PhaseBSampler(corpus, preset, preset.train.seed + 2000 + 1000 * rank)
     rows = sorted({corpus.row(s) for pairs in sampler.by_kind.values() for p in pairs for s in sampler.states(p)})
     mu_rows = encode_rows(model, corpus, rows, device, progress=progress and rank == 0)
+    if preset.model.vd_whiten:
+        model.vertex_decoder.set_direction_whitening(training_directions(sampler, corpus, mu_rows).to(device))
     get, put = _rng_accessors(sampler)
     net = PhaseBNet(model, preset, corpus.faces, mu_rows).to(device)
     spec = PhaseSpec("b", steps or preset.train.b_steps, preset.train.b_lr, net,
