@@ -8,7 +8,7 @@ Five parts, as in the paper:
 4. four local KNN refinement stages (edge convolutions over source-mesh neighbourhoods);
 5. a residual detail branch for small localised components (correctives).
 Beyond the paper, an optional bilinear deformation basis (`vd_basis` > 0): K displacement fields
-read from the mesh features alone, mixed by K coefficients of the condition (see `forward`).
+read from the mesh features alone, mixed by K coefficients linear in the delta (see `forward`).
 No layer is sized by the vertex count, so any mesh works; neighbourhoods are computed per
 mesh (`knn_graph`) and can be cached by the caller.
 """
@@ -122,8 +122,8 @@ class VertexDecoder(nn.Module):
         """ZCA preconditioner of the delta direction from training directions (N, Z): the
         first condition layer then sees decorrelated, unit-scale inputs. The same function class
         (a fixed linear map before a linear layer), but poses whose raw deltas nearly coincide
-        (cos 0.97 for kneeBentLf/Rt) become far apart (cos 0.65), which the optimiser needs
-        on a CPU step budget. eps_rel caps the gain of near-empty directions at 1/sqrt(eps_rel)."""
+        (cos 0.97 for kneeBentLf/Rt) become far apart (cos 0.65) for the optimiser (its effect on
+        the standard model is measured in the README). eps_rel caps the gain of near-empty directions."""
         u = directions.double()
         lam, vec = torch.linalg.eigh(u.T @ u / len(u))
         lam = lam.clamp(min=0) + eps_rel * lam.max()
