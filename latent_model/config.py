@@ -111,6 +111,23 @@ class ModelConfig:
     vd_dir_gain: float = 1.0
     vd_whiten: bool = False  # ZCA-whiten the delta direction with training statistics (False: as before)
     vd_basis: int = 0  # fields of the bilinear deformation basis (0: none, as checkpoints before it)
+    # Pose-prototype condition: the delta direction's softmax cosine similarity to the mean training
+    # direction of every pose (n_poses slots, set before Phase B) joins the condition vector. Nearest
+    # prototype names the pose of a held-out identity's delta 96% of the time on skeletal poses.
+    vd_prototypes: bool = False
+    vd_proto_temp: float = 0.003  # sharp: many pose prototypes are > 0.97 apart in cosine
+    vd_coef_max: float = 3.0
+    # Prototype fields (needs vd_prototypes): random Fourier features (this many; 0 = off) of the
+    # height-normalised source positions, one ridge read-out per (pair kind, pose) fitted in
+    # closed form before Phase B, mixed by the prototype weights x r / |mean training delta|.
+    vd_proto_fields: int = 0
+    vd_rff_sigma: float = 12.0  # frequency scale (x pi) of the features, in units of body height
+    vd_rff_seed: int = 0
+    vd_fit_ridge: float = 1e-2  # ridge, relative to the mean diagonal of the Gram matrix
+    vd_fit_vertices: int = 1500  # vertices per pair used by the fit (random subset)
+    # pair kinds whose fields are fitted: neutral sources are shared by every pose of an identity
+    # (one Gram matrix each, 35 s in all); each posed source needs its own (~14 s per field on 2 cores)
+    vd_fit_kinds: tuple[str, ...] = ("neutral_to_pose",)
     n_pair_kinds: int = 4
 
 
@@ -189,7 +206,8 @@ def preset(name: str) -> Preset:
     if name == "tiny":
         model = ModelConfig(latent=32, vd_dir_gain=math.sqrt(32), enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64,
                             sdf_layers=4, n_identities=n_train, n_poses=n_poses, vd_hidden=16, vd_cond=32,
-                            vd_bones=4, vd_knn=6, vd_edge=8, vd_basis=4, vd_whiten=True)  # tests exercise every switch
+                            vd_bones=4, vd_knn=6, vd_edge=8, vd_basis=4, vd_whiten=True,
+                            vd_prototypes=True, vd_proto_fields=64, vd_rff_sigma=3.0, vd_fit_vertices=200)  # tests exercise every switch
         train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
                             b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
         return Preset(name, corpus, model, train)
@@ -197,9 +215,12 @@ def preset(name: str) -> Preset:
         # The shipped model. vd_basis=64 + vd_whiten with static 0.2 / pos_rel 0 was measured as an
         # alternative (2500 steps, README "What was tried"): it learned spine and neck motion but
         # leaked 7-55 mm on still regions and lost the left arm (elbowBentLf 0.67 vs 0.84): not shipped.
-        model = ModelConfig(n_identities=n_train, n_poses=n_poses, vd_dir_gain=math.sqrt(512))
+        # Pose prototypes + closed-form prototype fields (1024 random Fourier features) carry the
+        # pose vocabulary; the network trains on top of them (README "Results").
+        model = ModelConfig(n_identities=n_train, n_poses=n_poses, vd_dir_gain=math.sqrt(512),
+                            vd_prototypes=True, vd_proto_fields=1024)
         # sized for <= 90 min on 2 CPU cores (bench/bench_train.py): A ~0.3 s/step, B ~0.7-0.9 s/step
-        train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=2500)
+        train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=1500)
         return Preset(name, corpus, model, train)
     if name == "paper":
         model = ModelConfig(vd_dir_gain=math.sqrt(512), enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,

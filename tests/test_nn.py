@@ -227,3 +227,96 @@ def test_basis_branch_is_silent_at_start_and_saved(tmp_path):
     old = Preset.from_dict(d).model
     assert old.vd_basis == 0 and not old.vd_whiten
     assert not hasattr(LatentReRig(old).vertex_decoder, "basis")
+
+
+def test_pose_prototypes_name_the_pose_and_round_trip(tmp_path):
+    """A delta near one pose's prototype gets (almost) all the prototype weight, a blend of two
+    splits it, zero rows never get weight, a kind without prototypes gives zeros (also before
+    they are set), and the amount of a field is 1 for the mean delta and linear in r. The buffers
+    round-trip; configs without the field (older checkpoints) have no prototype input."""
+    import dataclasses
+
+    from latent_model.config import Preset
+
+    p = preset("tiny")
+    cfg = dataclasses.replace(p.model, vd_proto_temp=0.05)
+    assert p.model.vd_prototypes
+    vd = LatentReRig(cfg).vertex_decoder
+    Z, P, K = cfg.latent, cfg.n_poses, cfg.n_pair_kinds
+    k0, k1 = torch.zeros(2, dtype=torch.long), torch.ones(2, dtype=torch.long)
+    assert vd.prototype_weights(torch.randn(2, Z), k0).abs().sum() == 0  # not set yet
+    g = torch.Generator().manual_seed(1)
+    protos = torch.zeros(K, P, Z)
+    protos[0] = torch.randn(P, Z, generator=g) * 3.0
+    protos[0, P - 1] = 0.0  # a pose without training pairs
+    vd.set_pose_prototypes(protos)
+    unit = torch.nn.functional.normalize(protos[0], dim=-1)
+    d = torch.nn.functional.normalize(torch.stack([protos[0, 0] + 0.1 * torch.randn(Z, generator=g), unit[1] + unit[2]]), dim=-1)
+    w = vd.prototype_weights(d, k0)
+    assert w.shape == (2, P) and torch.allclose(w.sum(-1), torch.ones(2))
+    assert w[0, 0] > 0.95
+    assert w[1, 1] > 0.3 and w[1, 2] > 0.3
+    assert w[:, P - 1].abs().max() == 0
+    assert vd.prototype_weights(d, k1).abs().sum() == 0  # kind 1 has no prototypes
+    mean_dir, mean_r = unit[:1], protos[0, :1].norm(dim=-1)
+    amount = vd.prototype_coefficients(mean_dir, mean_r, k0[:1])
+    assert amount[0, 0].item() == pytest.approx(1.0, abs=1e-4)
+    assert vd.prototype_coefficients(mean_dir, 0.5 * mean_r, k0[:1])[0, 0].item() == pytest.approx(0.5, abs=1e-4)
+    c = vd.condition(torch.zeros(2, Z), d, torch.ones(2), k0)
+    assert torch.isfinite(c).all()
+    m = LatentReRig(p.model)
+    m.vertex_decoder.set_pose_prototypes(protos)
+    path = tmp_path / "p.safetensors"
+    save_checkpoint(path, m, p, "b", 1)
+    m2, stored, _ = load_checkpoint(path)
+    assert stored.model.vd_prototypes and torch.equal(m2.vertex_decoder.prototypes, m.vertex_decoder.prototypes)
+    dd = p.to_dict()
+    for key in ("vd_prototypes", "vd_proto_temp", "vd_proto_fields"):
+        del dd["model"][key]
+    old = Preset.from_dict(dd).model
+    assert not old.vd_prototypes and not hasattr(LatentReRig(old).vertex_decoder, "prototypes")
+
+
+def test_prototype_fields_act_only_for_their_pose_and_kind_and_scale_with_r():
+    """A (kind, pose) field adds nothing at start, moves the mesh only when the delta is that
+    pose's and the pair that kind, and its motion is linear in r (the magnitude slider)."""
+    p = preset("tiny")
+    torch.manual_seed(0)
+    vd = LatentReRig(p.model).vertex_decoder.eval()
+    Z, P, K = p.model.latent, p.model.n_poses, p.model.n_pair_kinds
+    g = torch.Generator().manual_seed(2)
+    protos = torch.zeros(K, P, Z)
+    protos[0] = torch.nn.functional.normalize(torch.randn(P, Z, generator=g), dim=-1) * 2.0
+    vd.set_pose_prototypes(protos)
+    V = 300
+    v = torch.randn(1, V, 3, generator=g) * 0.3
+    n = torch.nn.functional.normalize(torch.randn(1, V, 3, generator=g), dim=-1)
+    knn = torch.from_numpy(knn_graph(v[0].numpy(), p.model.vd_knn))[None]
+    unit = protos[0] / 2.0
+
+    def run(pose: int, kind: int, r: float) -> torch.Tensor:
+        with torch.no_grad():
+            return vd(v, n, torch.zeros(1, Z), unit[pose:pose + 1], torch.tensor([r]), torch.tensor([kind]), knn)["vertices"]
+
+    before = run(0, 0, 2.0)
+    with torch.no_grad():
+        vd.proto_fields[0, 0].normal_(generator=g)
+    moved = (run(0, 0, 2.0) - before).norm(dim=-1).mean()
+    assert moved > 1e-3
+    assert (run(1, 0, 2.0) - vd_unchanged(vd, run, 1, 0, 2.0)).abs().max() < 1e-5
+    assert (run(0, 1, 2.0) - vd_unchanged(vd, run, 0, 1, 2.0)).abs().max() < 1e-5
+    # linear in r: the field part at r=1 is half the one at r=2 (the rest of the decoder is
+    # not linear in r, so compare the field's own contribution)
+    field2 = run(0, 0, 2.0) - vd_unchanged(vd, run, 0, 0, 2.0)
+    field1 = run(0, 0, 1.0) - vd_unchanged(vd, run, 0, 0, 1.0)
+    assert torch.allclose(field1, 0.5 * field2, atol=1e-4)
+
+
+def vd_unchanged(vd, run, pose: int, kind: int, r: float) -> torch.Tensor:
+    """`run` with the prototype fields temporarily zeroed."""
+    saved = vd.proto_fields.clone()
+    vd.proto_fields.zero_()
+    try:
+        return run(pose, kind, r)
+    finally:
+        vd.proto_fields.copy_(saved)

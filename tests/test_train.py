@@ -46,6 +46,9 @@ def test_phase_b_leaves_the_encoder_bit_identical(run_a, tiny_corpus):
     for k, v in before.items():
         assert torch.equal(v, after[k]), f"{k} changed in Phase B"
     assert any(not torch.equal(v, model.vertex_decoder.state_dict()[k]) for k, v in vd_before.items())
+    # the pose prototypes were set from the training pairs: one unit row per pose with pairs
+    norms = model.vertex_decoder.prototypes.norm(dim=-1)
+    assert (norms > 0).sum() >= 2 and torch.allclose(norms[norms > 0], torch.ones(int((norms > 0).sum())))
     lines = (run / "metrics_b.jsonl").read_text().splitlines()
     assert {"pos", "knn", "knn_delta", "static", "smooth", "nrm"} <= set(json.loads(lines[-1]))
 
@@ -67,3 +70,40 @@ def test_ddp_two_cpu_processes(tiny_corpus, tmp_path):
     model, stored, _ = load_checkpoint(run / "model.safetensors", expect=preset("tiny"))
     assert stored.name == "tiny"
     assert (run / "loss_a.png").exists() and (run / "loss_b.png").exists()
+
+
+def test_closed_form_fields_reproduce_the_training_pairs(run_a, tiny_corpus):
+    """The ridge-fitted prototype fields, given the pose's mean training delta (the `mean`
+    strategy), move training meshes much closer to their targets than no motion; with the fields
+    left at zero they do not move them."""
+    from latent_model.corpus.pairs import PAIR_KINDS
+    from latent_model.train.closed_form import fit_prototype_fields, pose_prototypes
+    from latent_model.train.data import PhaseBSampler
+    from latent_model.train.phases import encode_rows
+
+    run, p, _ = run_a
+    model, _, _ = load_checkpoint(run / "phase_a.safetensors")
+    c = tiny_corpus
+    sampler = PhaseBSampler(c, p, 0)
+    pairs = [q for q in sampler.by_kind["neutral_to_pose"] if q.pose in ("elbowBentLf", "kneeBentLf")]
+    rows = sorted({c.row(s) for q in sampler.by_kind["neutral_to_pose"] for s in sampler.states(q)})
+    mu = encode_rows(model, c, rows, torch.device("cpu"), progress=False)
+    vd = model.vertex_decoder
+    vd.set_pose_prototypes(pose_prototypes(sampler, c, mu, p.model.n_poses))
+
+    def ratio() -> float:
+        errs = []
+        for q in pairs:
+            s, t = sampler.states(q)
+            v0, vt = torch.from_numpy(c.vertices(s))[None].float(), torch.from_numpy(c.vertices(t))[None].float()
+            k, pose = PAIR_KINDS.index(q.kind), c.pose_index(q.pose)
+            d, r = vd.prototypes[k, pose][None], vd.proto_r[k, pose][None]
+            with torch.no_grad():
+                pred = v0 + vd.prototype_displacement(vd.field_features(v0), d, r, torch.tensor([k]))
+            errs.append(float((pred - vt).norm(dim=-1).mean() / (v0 - vt).norm(dim=-1).mean()))
+        return sum(errs) / len(errs)
+
+    assert ratio() == pytest.approx(1.0)
+    info = fit_prototype_fields(vd, sampler, c, mu, seed=0, progress=False)
+    assert info["pairs"] > 0 and vd.proto_fields.abs().sum() > 0
+    assert ratio() < 0.6

@@ -7,7 +7,10 @@ Five parts, as in the paper:
 3. a per-vertex latent-delta mask that gates where the global signal acts;
 4. four local KNN refinement stages (edge convolutions over source-mesh neighbourhoods);
 5. a residual detail branch for small localised components (correctives).
-Beyond the paper, an optional bilinear deformation basis (`vd_basis` > 0): K displacement fields
+Beyond the paper, an optional pose-prototype condition (`vd_prototypes`: softmax similarity of
+the delta to each pose's mean training delta), prototype fields fitted in closed form
+(`vd_proto_fields`: per kind and pose, a linear read-out of random Fourier features of the
+normalised source positions), and an optional bilinear deformation basis (`vd_basis` > 0): K displacement fields
 read from the mesh features alone, mixed by K coefficients linear in the delta (see `forward`).
 No layer is sized by the vertex count, so any mesh works; neighbourhoods are computed per
 mesh (`knn_graph`) and can be cached by the caller.
@@ -84,7 +87,8 @@ class VertexDecoder(nn.Module):
         self.cfg = cfg
         H, C, nb = cfg.vd_hidden, cfg.vd_cond, cfg.vd_bones
         self.kind_emb = nn.Embedding(cfg.n_pair_kinds, 16)
-        self.cond = mlp([2 * cfg.latent + 2 + 16, 256, C], final_act=True)
+        n_proto = cfg.n_poses if cfg.vd_prototypes else 0
+        self.cond = mlp([2 * cfg.latent + 2 + 16 + n_proto, 256, C], final_act=True)
         self.vert = mlp([3 + 6 * cfg.vd_fourier + 3, H, H], final_act=True)
         self.film = nn.Linear(C, 2 * H)
         # Virtual bones: per bone a 6D rotation offset, pivot and translation from the condition.
@@ -116,7 +120,19 @@ class VertexDecoder(nn.Module):
         if cfg.vd_whiten:
             # set from the training deltas before Phase B (`set_direction_whitening`), saved with the model
             self.register_buffer("dir_whiten", torch.eye(cfg.latent) * cfg.vd_dir_gain)
-
+        if cfg.vd_prototypes:
+            # unit mean training direction per (pair kind, pose); zero rows: no prototype
+            self.register_buffer("prototypes", torch.zeros(cfg.n_pair_kinds, cfg.n_poses, cfg.latent))
+            # |mean training delta| per (kind, pose): r / this is 1 for the mean delta
+            self.register_buffer("proto_r", torch.ones(cfg.n_pair_kinds, cfg.n_poses))
+        if cfg.vd_prototypes and cfg.vd_proto_fields:
+            # Prototype fields: random Fourier features of the height-normalised source positions
+            # (fixed, seeded) and one linear read-out per (kind, pose), fitted in closed form
+            # (ridge) on the training pairs before Phase B (`latent_model/train/closed_form.py`).
+            g = torch.Generator().manual_seed(cfg.vd_rff_seed)
+            freq = torch.randn(3, cfg.vd_proto_fields // 2, generator=g) * cfg.vd_rff_sigma * torch.pi
+            self.register_buffer("rff", freq)
+            self.register_buffer("proto_fields", torch.zeros(cfg.n_pair_kinds, cfg.n_poses, cfg.vd_proto_fields + 1, 3))
     @torch.no_grad()
     def set_direction_whitening(self, directions: torch.Tensor, eps_rel: float = 1e-3) -> None:
         """ZCA preconditioner of the delta direction from training directions (N, Z): the
@@ -131,6 +147,48 @@ class VertexDecoder(nn.Module):
         w = w * (u.shape[1] / (u @ w).square().sum(-1).mean()).sqrt()  # unit-RMS components on average
         self.dir_whiten.copy_(w.float())
 
+    @torch.no_grad()
+    def set_pose_prototypes(self, prototypes: torch.Tensor) -> None:
+        """(n_kinds, n_poses, Z) mean training delta per pair kind and pose (zero rows: none)."""
+        self.prototypes.copy_(nn.functional.normalize(prototypes.float(), dim=-1))
+        r = prototypes.float().norm(dim=-1)
+        self.proto_r.copy_(torch.where(r > 0, r, torch.ones_like(r)))
+
+    def prototype_weights(self, delta_dir: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
+        """(B, Z) direction, (B,) kind -> (B, n_poses) softmax of its cosine to each of that kind's
+        pose prototypes (temperature vd_proto_temp): near one-hot for a recognised pose (the
+        nearest prototype names a held-out identity's skeletal pose 96% of the time), a mixture
+        for blends; zeros for a kind without prototypes (before they are set)."""
+        protos = self.prototypes[kind]  # (B, P, Z)
+        valid = protos.abs().sum(-1) > 0
+        cos = torch.einsum("bz,bpz->bp", nn.functional.normalize(delta_dir, dim=-1), protos)
+        w = torch.softmax((cos / self.cfg.vd_proto_temp).masked_fill(~valid, float("-inf")), dim=-1)
+        return torch.nan_to_num(w, nan=0.0)  # rows without any prototype
+
+    def field_features(self, v_src: torch.Tensor) -> torch.Tensor:
+        """(B, V, 3) -> (B, V, D + 1) random Fourier features of the positions centred on the
+        mesh's bounding box and divided by its height (z): the same body part of a short and a
+        tall identity reads (nearly) the same features."""
+        lo, hi = v_src.amin(dim=1, keepdim=True), v_src.amax(dim=1, keepdim=True)
+        x = (v_src - (lo + hi) / 2) / (hi - lo)[..., 2:3].clamp(min=1e-6)
+        a = x @ self.rff
+        return torch.cat([torch.cos(a), torch.sin(a), torch.ones_like(a[..., :1])], dim=-1)
+
+    def prototype_coefficients(self, delta_dir: torch.Tensor, r: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
+        """(B, n_poses) amount of each prototype field: weight x (the delta's component along the
+        prototype / |mean training delta|), 1 for the mean delta itself, linear in r (the
+        magnitude slider), capped at vd_coef_max so a noise-level delta cannot blow a field up."""
+        cos = torch.einsum("bz,bpz->bp", nn.functional.normalize(delta_dir, dim=-1), self.prototypes[kind])
+        amount = (cos * r.reshape(-1, 1) / self.proto_r[kind]).clamp(0.0, self.cfg.vd_coef_max)
+        return self.prototype_weights(delta_dir, kind) * amount
+
+    def prototype_displacement(self, phi: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
+                               kind: torch.Tensor) -> torch.Tensor:
+        """phi (B, V, D+1) `field_features` -> (B, V, 3): the fitted fields of the pair's kind mixed
+        by `prototype_coefficients`."""
+        w = torch.einsum("bp,bpdj->bdj", self.prototype_coefficients(delta_dir, r, kind), self.proto_fields[kind])
+        return torch.bmm(phi, w)
+
     def direction_input(self, delta_dir: torch.Tensor) -> torch.Tensor:
         """(B, Z) unit direction -> what the network reads: whitened, or scaled by the gain."""
         return delta_dir @ self.dir_whiten if self.cfg.vd_whiten else delta_dir * self.cfg.vd_dir_gain
@@ -138,12 +196,19 @@ class VertexDecoder(nn.Module):
     def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
         """(B, Z), (B, Z), (B,), (B,) long -> (B, C)."""
         r = r.reshape(-1, 1)
-        return self.cond(torch.cat([mu_src, self.direction_input(delta_dir), r, torch.log(r + 1e-6), self.kind_emb(kind)], dim=-1))
+        parts = [mu_src, self.direction_input(delta_dir), r, torch.log(r + 1e-6), self.kind_emb(kind)]
+        if self.cfg.vd_prototypes:
+            parts.append(self.prototype_weights(delta_dir, kind))
+        return self.cond(torch.cat(parts, dim=-1))
 
     def mesh_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> torch.Tensor:
-        """(B, V, H) per-vertex features that depend on the mesh only: a caller that predicts many
-        poses for one mesh (the explorer's sliders) computes them once."""
-        return self.vert(torch.cat([fourier_features(v_src, self.cfg.vd_fourier), n_src], dim=-1))
+        """(B, V, H) per-vertex features that depend on the mesh only, followed by the D + 1 field
+        features when prototype fields are on: a caller that predicts many poses for one mesh
+        (the explorer's sliders) computes them once."""
+        f = self.vert(torch.cat([fourier_features(v_src, self.cfg.vd_fourier), n_src], dim=-1))
+        if self.cfg.vd_prototypes and self.cfg.vd_proto_fields:
+            f = torch.cat([f, self.field_features(v_src)], dim=-1)
+        return f
 
     def forward(self, v_src: torch.Tensor, n_src: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor,
                 r: torch.Tensor, kind: torch.Tensor, knn: torch.Tensor,
@@ -156,6 +221,7 @@ class VertexDecoder(nn.Module):
         B = v_src.shape[0]
         c = self.condition(mu_src, delta_dir, r, kind)
         f = self.mesh_features(v_src, n_src) if features is None else features
+        f, phi = f[..., :cfg.vd_hidden], f[..., cfg.vd_hidden:]  # phi: field features (or empty)
         gamma, beta = self.film(c).chunk(2, dim=-1)
         h = f * (1.0 + gamma[:, None]) + beta[:, None]
         # 1) virtual-bone coarse stage
@@ -183,6 +249,8 @@ class VertexDecoder(nn.Module):
             coef = self.basis_coef(self.direction_input(delta_dir)) * (0.1 * r.reshape(-1, 1))
             fields = self.basis(f).reshape(B, -1, cfg.vd_basis)  # (B, V*3, K): one bmm, no einsum copies
             d = d + torch.bmm(fields, coef[:, :, None]).reshape(B, -1, 3) * 0.1
+        if cfg.vd_prototypes and cfg.vd_proto_fields:
+            d = d + self.prototype_displacement(phi, delta_dir, r, kind)
         # 3) local KNN refinement
         g = h
         for stage, out in zip(self.stages, self.stage_out):

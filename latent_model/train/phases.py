@@ -14,6 +14,7 @@ from latent_model.nn import losses
 from latent_model.nn.encoder import reparameterise
 from latent_model.nn.model import LatentReRig
 from latent_model.train.checkpoint import load_phase_a, save_checkpoint
+from latent_model.train.closed_form import fit_prototype_fields, pose_prototypes
 from latent_model.train.data import PhaseABatch, PhaseASampler, PhaseBBatch, PhaseBSampler
 from latent_model.train.loop import PhaseSpec, dist_info, run_phase
 
@@ -138,6 +139,11 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
     mu_rows = encode_rows(model, corpus, rows, device, progress=progress and rank == 0)
     if preset.model.vd_whiten:
         model.vertex_decoder.set_direction_whitening(training_directions(sampler, corpus, mu_rows).to(device))
+    if preset.model.vd_prototypes:
+        model.vertex_decoder.set_pose_prototypes(pose_prototypes(sampler, corpus, mu_rows, preset.model.n_poses).to(device))
+        if preset.model.vd_proto_fields:
+            fit_prototype_fields(model.vertex_decoder, sampler, corpus, mu_rows, preset.train.seed + 3000,
+                                 progress=progress and rank == 0)
     get, put = _rng_accessors(sampler)
     net = PhaseBNet(model, preset, corpus.faces, mu_rows).to(device)
     spec = PhaseSpec("b", steps or preset.train.b_steps, preset.train.b_lr, net,
