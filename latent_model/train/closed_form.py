@@ -2,11 +2,13 @@
 
 - pose prototypes: the mean latent delta of every (pair kind, pose) over the training identities;
 - prototype fields: per (kind, pose) a ridge read-out of the decoder's random Fourier features
-  of the source mesh, fitted to the pairs' displacements scaled by r / |mean delta|.
+  of the source mesh, fitted to the pairs' displacements (features scaled by the amount the
+  decoder gives the field for the pair's own delta).
 
-Measured on the standard corpus (14 held-out identities, true pose, before any SGD): explained
-motion 0.84-0.89 with 1-2 mm static leakage on elbow, hip, spine, shoulder, clavicle and neck
-poses, 0.66 on the knees (`bench/` has no figure for it; the README's results do).
+Measured on the standard corpus (14 held-out identities, the fields alone with the mean delta,
+before any SGD): explained motion 0.83-0.89 with 1-3 mm static leakage on elbow, hip, spine,
+shoulder, clavicle and neck poses, 0.58-0.62 on the knees; the shipped model's figures are in the
+README results.
 """
 from __future__ import annotations
 
