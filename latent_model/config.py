@@ -116,7 +116,7 @@ class ModelConfig:
     # prototype names the pose of a held-out identity's delta 96% of the time on skeletal poses.
     vd_prototypes: bool = False
     vd_proto_temp: float = 0.003  # sharp: many pose prototypes are > 0.97 apart in cosine
-    vd_coef_max: float = 3.0
+    vd_coef_max: float = 3.0  # cap on a field's amount (3x the mean delta's)
     # Prototype fields (needs vd_prototypes): random Fourier features (this many; 0 = off) of the
     # height-normalised source positions, one ridge read-out per (pair kind, pose) fitted in
     # closed form before Phase B, mixed by the prototype weights x r / |mean training delta|.
@@ -219,7 +219,7 @@ def preset(name: str) -> Preset:
         # pose vocabulary; the network trains on top of them (README "Results").
         model = ModelConfig(n_identities=n_train, n_poses=n_poses, vd_dir_gain=math.sqrt(512),
                             vd_prototypes=True, vd_proto_fields=1024)
-        # sized for <= 90 min on 2 CPU cores (bench/bench_train.py): A ~0.3 s/step, B ~0.7-0.9 s/step
+        # sized for <= 90 min on 2 CPU cores: A ~0.3 s/step, B ~1.4 s/step with the fields (README)
         train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=1500)
         return Preset(name, corpus, model, train)
     if name == "paper":

@@ -133,6 +133,7 @@ class VertexDecoder(nn.Module):
             freq = torch.randn(3, cfg.vd_proto_fields // 2, generator=g) * cfg.vd_rff_sigma * torch.pi
             self.register_buffer("rff", freq)
             self.register_buffer("proto_fields", torch.zeros(cfg.n_pair_kinds, cfg.n_poses, cfg.vd_proto_fields + 1, 3))
+
     @torch.no_grad()
     def set_direction_whitening(self, directions: torch.Tensor, eps_rel: float = 1e-3) -> None:
         """ZCA preconditioner of the delta direction from training directions (N, Z): the
@@ -154,14 +155,20 @@ class VertexDecoder(nn.Module):
         r = prototypes.float().norm(dim=-1)
         self.proto_r.copy_(torch.where(r > 0, r, torch.ones_like(r)))
 
-    def prototype_weights(self, delta_dir: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
+    def prototype_cosines(self, delta_dir: torch.Tensor, kind: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, Z) direction, (B,) kind -> cosine to each of that kind's prototypes (B, n_poses) and
+        which prototypes exist (B, n_poses) bool."""
+        protos = self.prototypes[kind]  # (B, P, Z)
+        cos = torch.einsum("bz,bpz->bp", nn.functional.normalize(delta_dir, dim=-1), protos)
+        return cos, protos.abs().sum(-1) > 0
+
+    def prototype_weights(self, delta_dir: torch.Tensor, kind: torch.Tensor,
+                          cosines: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
         """(B, Z) direction, (B,) kind -> (B, n_poses) softmax of its cosine to each of that kind's
         pose prototypes (temperature vd_proto_temp): near one-hot for a recognised pose (the
         nearest prototype names a held-out identity's skeletal pose 96% of the time), a mixture
         for blends; zeros for a kind without prototypes (before they are set)."""
-        protos = self.prototypes[kind]  # (B, P, Z)
-        valid = protos.abs().sum(-1) > 0
-        cos = torch.einsum("bz,bpz->bp", nn.functional.normalize(delta_dir, dim=-1), protos)
+        cos, valid = self.prototype_cosines(delta_dir, kind) if cosines is None else cosines
         w = torch.softmax((cos / self.cfg.vd_proto_temp).masked_fill(~valid, float("-inf")), dim=-1)
         return torch.nan_to_num(w, nan=0.0)  # rows without any prototype
 
@@ -178,9 +185,9 @@ class VertexDecoder(nn.Module):
         """(B, n_poses) amount of each prototype field: weight x (the delta's component along the
         prototype / |mean training delta|), 1 for the mean delta itself, linear in r (the
         magnitude slider), capped at vd_coef_max so a noise-level delta cannot blow a field up."""
-        cos = torch.einsum("bz,bpz->bp", nn.functional.normalize(delta_dir, dim=-1), self.prototypes[kind])
-        amount = (cos * r.reshape(-1, 1) / self.proto_r[kind]).clamp(0.0, self.cfg.vd_coef_max)
-        return self.prototype_weights(delta_dir, kind) * amount
+        cosines = self.prototype_cosines(delta_dir, kind)
+        amount = (cosines[0] * r.reshape(-1, 1) / self.proto_r[kind]).clamp(0.0, self.cfg.vd_coef_max)
+        return self.prototype_weights(delta_dir, kind, cosines) * amount
 
     def prototype_displacement(self, phi: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
                                kind: torch.Tensor) -> torch.Tensor:
