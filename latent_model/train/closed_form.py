@@ -55,10 +55,11 @@ def fit_prototype_fields(vd: VertexDecoder, sampler: PhaseBSampler, corpus: Corp
 
     def features(state: int) -> tuple[np.ndarray, torch.Tensor, torch.Tensor]:
         if state not in cache:
-            v = torch.from_numpy(corpus.vertices(state)).double().to(dev)
+            v = torch.from_numpy(corpus.vertices(state)).float().to(dev)
             sub = rng.choice(len(v), size=min(cfg.vd_fit_vertices, len(v)), replace=False)
-            x = vd.field_features(v[None].float())[0][torch.from_numpy(sub).to(dev)]
-            cache.clear() if len(cache) > 512 else None  # bounded memory; neutral sources recur
+            x = vd.field_features(v[None])[0][torch.from_numpy(sub).to(dev)]
+            if len(cache) > 512:  # bounded memory; neutral sources recur across poses
+                cache.clear()
             cache[state] = (sub, x.double(), (x.T @ x).double())  # float32 product: 2x faster
         return cache[state]
 
@@ -68,8 +69,7 @@ def fit_prototype_fields(vd: VertexDecoder, sampler: PhaseBSampler, corpus: Corp
             continue  # its fields stay zero: the network alone predicts that kind
         for p in pairs:
             groups[(PAIR_KINDS.index(kind), corpus.pose_index(p.pose))].append(p)
-    # neutral sources first and grouped by identity: their features are shared by every pose
-    order = sorted(groups, key=lambda kp: (kp[0], kp[1]))
+    order = sorted(groups)  # (kind, pose)
     n_pairs = 0
     for kp in tqdm(order, desc="fitting prototype fields", disable=not progress, unit="field"):
         k, pose = kp
