@@ -18,7 +18,7 @@ import torch
 from latent_model.bank import LatentBank
 from latent_model.corpus.pairs import PAIR_KINDS
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
-from latent_model.nn.vertex_decoder import knn_graph
+from latent_model.nn.vertex_decoder import MeshFeatures, knn_graph
 from latent_model.train.phases import normalised_delta
 
 STRATEGIES = ("mean_pose_delta", "nearest_identity_delta", "identity:<id>", "oracle")
@@ -38,7 +38,7 @@ class PreparedMesh:
     normals: np.ndarray  # (V, 3)
     knn: np.ndarray  # (V, K) neighbourhoods (cached per mesh)
     mu: np.ndarray  # (Z,) posterior mean of the mesh's SDF samples
-    features: torch.Tensor | None = None  # (1, V, H) the decoder's mesh-only features, cached on first use
+    features: MeshFeatures | None = None  # the decoder's mesh-only features, cached on first use
 
 
 def parse_strategy(text: str) -> str:
@@ -151,7 +151,7 @@ class Transfer:
         vd = self.model.vertex_decoder
         v = torch.from_numpy(mesh.vertices)[None].to(dev)
         n = torch.from_numpy(mesh.normals)[None].to(dev)
-        if mesh.features is None or mesh.features.device != torch.device(dev):
+        if mesh.features is None or mesh.features.hidden.device != torch.device(dev):
             mesh.features = vd.mesh_features(v, n)
         direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(dev))
         out = vd(v, n, torch.from_numpy(mesh.mu)[None].to(dev), direction, r * float(magnitude),

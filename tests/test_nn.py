@@ -320,3 +320,43 @@ def vd_unchanged(vd, run, pose: int, kind: int, r: float) -> torch.Tensor:
         return run(pose, kind, r)
     finally:
         vd.proto_fields.copy_(saved)
+
+
+def test_cached_field_displacements_equal_the_direct_read_out():
+    """The mesh-feature cache (field displacements per fitted pose, read out in vertex chunks)
+    gives the decoder's own output, for a batch mixing kinds (one without fitted fields), a
+    blended delta and more vertices than one chunk; a kind's cache is filled only when used."""
+    from latent_model.nn.vertex_decoder import MeshFeatures
+
+    p = preset("tiny")
+    torch.manual_seed(0)
+    vd = LatentReRig(p.model).vertex_decoder.eval()
+    Z, P, K = p.model.latent, p.model.n_poses, p.model.n_pair_kinds
+    g = torch.Generator().manual_seed(3)
+    protos = torch.zeros(K, P, Z)
+    protos[:2] = torch.nn.functional.normalize(torch.randn(2, P, Z, generator=g), dim=-1) * 2.0
+    vd.set_pose_prototypes(protos)
+    with torch.no_grad():
+        vd.proto_fields[0, :5].normal_(generator=g)  # kind 0: five fitted poses; kind 1: none
+        vd.proto_fields[0, 7].normal_(generator=g)
+    V = 5000  # > one 4096-vertex chunk
+    v = torch.randn(2, V, 3, generator=g) * 0.3
+    n = torch.nn.functional.normalize(torch.randn(2, V, 3, generator=g), dim=-1)
+    knn = torch.stack([torch.from_numpy(knn_graph(x.numpy(), p.model.vd_knn)) for x in v])
+    d = torch.nn.functional.normalize(0.6 * protos[0, 1] + 0.4 * protos[0, 7], dim=-1)
+    dirs = torch.stack([d, protos[1, 2] / 2.0])
+    r, kind = torch.tensor([2.0, 1.5]), torch.tensor([0, 1])
+    with torch.no_grad():
+        direct = vd(v, n, torch.zeros(2, Z), dirs, r, kind, knn)["vertices"]
+        feats = vd.mesh_features(v, n)
+        assert isinstance(feats, MeshFeatures) and feats.fields == {}
+        cached = vd(v, n, torch.zeros(2, Z), dirs, r, kind, knn, features=feats)["vertices"]
+        only0 = vd.mesh_features(v[:1], n[:1])
+        vd(v[:1], n[:1], torch.zeros(1, Z), dirs[:1], r[:1], kind[:1], knn[:1], features=only0)
+    assert sorted(feats.fields) == [0, 1] and sorted(only0.fields) == [0]
+    assert feats.fields[0][0].tolist() == [0, 1, 2, 3, 4, 7] and len(feats.fields[1][0]) == 0
+    assert (direct[0] - v[0]).norm(dim=-1).mean() > 1e-2  # the fields do move the mesh
+    assert torch.allclose(cached, direct, atol=1e-5)
+    with torch.no_grad():  # one kind per batch (the fast path) as well
+        one = vd(v[:1], n[:1], torch.zeros(1, Z), dirs[:1], r[:1], kind[:1], knn[:1], features=only0)["vertices"]
+    assert torch.allclose(one, direct[:1], atol=1e-5)

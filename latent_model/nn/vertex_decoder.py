@@ -17,6 +17,8 @@ mesh (`knn_graph`) and can be cached by the caller.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 import torch
 from torch import nn
@@ -79,6 +81,19 @@ class EdgeStage(nn.Module):
         b = self.nbr_proj(g) + self.pos_proj(x * POS_SCALE) + self.disp_proj(d * POS_SCALE)
         e = self.self_proj(g) - b + gather_neighbours(b, knn).amax(dim=2)
         return g + self.update(torch.nn.functional.silu(e))
+
+
+@dataclass
+class MeshFeatures:
+    """What the decoder reads from a mesh alone, cached by a caller that predicts many poses for
+    one mesh (the explorer's sliders, the evaluation). The prototype fields enter as their
+    displacements (one per fitted pose of a kind, computed on the first prediction of that kind)
+    rather than as the D + 1 random Fourier features: 243 numbers per vertex instead of 1025, and
+    one small read-out per prediction instead of a 60 MB one. Valid while the fields are unchanged."""
+
+    hidden: torch.Tensor  # (B, V, H)
+    vertices: torch.Tensor  # (B, V, 3) the source, for the field displacements
+    fields: dict[int, tuple[torch.Tensor, torch.Tensor]] = field(default_factory=dict)  # kind -> (poses (F,), (B, F, V*3))
 
 
 class VertexDecoder(nn.Module):
@@ -172,11 +187,13 @@ class VertexDecoder(nn.Module):
         w = torch.softmax((cos / self.cfg.vd_proto_temp).masked_fill(~valid, float("-inf")), dim=-1)
         return torch.nan_to_num(w, nan=0.0)  # rows without any prototype
 
-    def field_features(self, v_src: torch.Tensor) -> torch.Tensor:
+    def field_features(self, v_src: torch.Tensor,
+                       bbox: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
         """(B, V, 3) -> (B, V, D + 1) random Fourier features of the positions centred on the
         mesh's bounding box and divided by its height (z): the same body part of a short and a
-        tall identity reads (nearly) the same features."""
-        lo, hi = v_src.amin(dim=1, keepdim=True), v_src.amax(dim=1, keepdim=True)
+        tall identity reads (nearly) the same features. bbox: the mesh's (lo, hi) (B, 1, 3) each,
+        when v_src is a part of it."""
+        lo, hi = (v_src.amin(dim=1, keepdim=True), v_src.amax(dim=1, keepdim=True)) if bbox is None else bbox
         x = (v_src - (lo + hi) / 2) / (hi - lo)[..., 2:3].clamp(min=1e-6)
         a = x @ self.rff
         return torch.cat([torch.cos(a), torch.sin(a), torch.ones_like(a[..., :1])], dim=-1)
@@ -196,6 +213,42 @@ class VertexDecoder(nn.Module):
         w = torch.einsum("bp,bpdj->bdj", self.prototype_coefficients(delta_dir, r, kind), self.proto_fields[kind])
         return torch.bmm(phi, w)
 
+    def kind_field_displacements(self, feats: MeshFeatures, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(poses (F,), displacements (B, F, V*3)) of the fitted fields of kind k on the cached
+        mesh: each field read out once (chunked over vertices: no (V, D+1) feature block is kept)."""
+        if k not in feats.fields:
+            fitted = self.proto_fields[k].abs().flatten(1).amax(dim=1) > 0  # (P,) poses with a field
+            poses = torch.nonzero(fitted).flatten()
+            v = feats.vertices
+            B, V = v.shape[:2]
+            w = self.proto_fields[k, poses].permute(1, 0, 2).reshape(self.proto_fields.shape[2], -1)  # (D+1, F*3)
+            u = torch.empty(B, V, len(poses) * 3, device=v.device)
+            if len(poses):
+                lo, hi = v.amin(dim=1, keepdim=True), v.amax(dim=1, keepdim=True)
+                for i in range(0, V, 4096):  # the features of the whole bbox, 4096 vertices at a time
+                    u[:, i:i + 4096] = self.field_features(v[:, i:i + 4096], (lo, hi)) @ w
+            feats.fields[k] = (poses, u.reshape(B, V, -1, 3).permute(0, 2, 1, 3).reshape(B, len(poses), V * 3))
+        return feats.fields[k]
+
+    def cached_prototype_displacement(self, feats: MeshFeatures, delta_dir: torch.Tensor, r: torch.Tensor,
+                                      kind: torch.Tensor) -> torch.Tensor:
+        """= `prototype_displacement(field_features(v), ...)` from the cached field displacements: (B, V, 3)."""
+        B, V = feats.vertices.shape[:2]
+        coef = self.prototype_coefficients(delta_dir, r, kind)  # (B, P)
+        kinds = kind.unique().tolist()
+        if len(kinds) == 1:  # the usual case (one mesh, one pair kind): no copy of the cache
+            poses, u = self.kind_field_displacements(feats, kinds[0])
+            if not len(poses):
+                return torch.zeros_like(feats.vertices)
+            return torch.bmm(coef[:, poses][:, None], u).reshape(B, V, 3)
+        out = torch.zeros(B, V * 3, device=coef.device)
+        for k in kinds:
+            poses, u = self.kind_field_displacements(feats, k)
+            rows = kind == k
+            if len(poses):
+                out[rows] = torch.bmm(coef[rows][:, poses][:, None], u[rows])[:, 0]
+        return out.reshape(B, V, 3)
+
     def direction_input(self, delta_dir: torch.Tensor) -> torch.Tensor:
         """(B, Z) unit direction -> what the network reads: whitened, or scaled by the gain."""
         return delta_dir @ self.dir_whiten if self.cfg.vd_whiten else delta_dir * self.cfg.vd_dir_gain
@@ -208,18 +261,17 @@ class VertexDecoder(nn.Module):
             parts.append(self.prototype_weights(delta_dir, kind))
         return self.cond(torch.cat(parts, dim=-1))
 
-    def mesh_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> torch.Tensor:
-        """(B, V, H) per-vertex features that depend on the mesh only, followed by the D + 1 field
-        features when prototype fields are on: a caller that predicts many poses for one mesh
-        (the explorer's sliders) computes them once."""
-        f = self.vert(torch.cat([fourier_features(v_src, self.cfg.vd_fourier), n_src], dim=-1))
-        if self.cfg.vd_prototypes and self.cfg.vd_proto_fields:
-            f = torch.cat([f, self.field_features(v_src)], dim=-1)
-        return f
+    def vertex_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> torch.Tensor:
+        """(B, V, 3) positions and normals -> (B, V, H) per-vertex features of the mesh alone."""
+        return self.vert(torch.cat([fourier_features(v_src, self.cfg.vd_fourier), n_src], dim=-1))
+
+    def mesh_features(self, v_src: torch.Tensor, n_src: torch.Tensor) -> MeshFeatures:
+        """The pose-independent part of `forward` for one mesh (pass it as `features`)."""
+        return MeshFeatures(self.vertex_features(v_src, n_src), v_src)
 
     def forward(self, v_src: torch.Tensor, n_src: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor,
                 r: torch.Tensor, kind: torch.Tensor, knn: torch.Tensor,
-                features: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                features: MeshFeatures | None = None) -> dict[str, torch.Tensor]:
         """v_src, n_src (B, V, 3); mu_src, delta_dir (B, Z); r (B,); kind (B,); knn (B, V, K);
         features: optional cached `mesh_features(v_src, n_src)`.
 
@@ -227,8 +279,7 @@ class VertexDecoder(nn.Module):
         cfg = self.cfg
         B = v_src.shape[0]
         c = self.condition(mu_src, delta_dir, r, kind)
-        f = self.mesh_features(v_src, n_src) if features is None else features
-        f, phi = f[..., :cfg.vd_hidden], f[..., cfg.vd_hidden:]  # phi: field features (or empty)
+        f = self.vertex_features(v_src, n_src) if features is None else features.hidden
         gamma, beta = self.film(c).chunk(2, dim=-1)
         h = f * (1.0 + gamma[:, None]) + beta[:, None]
         # 1) virtual-bone coarse stage
@@ -257,7 +308,8 @@ class VertexDecoder(nn.Module):
             fields = self.basis(f).reshape(B, -1, cfg.vd_basis)  # (B, V*3, K): one bmm, no einsum copies
             d = d + torch.bmm(fields, coef[:, :, None]).reshape(B, -1, 3) * 0.1
         if cfg.vd_prototypes and cfg.vd_proto_fields:
-            d = d + self.prototype_displacement(phi, delta_dir, r, kind)
+            d = d + (self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind) if features is None
+                     else self.cached_prototype_displacement(features, delta_dir, r, kind))
         # 3) local KNN refinement
         g = h
         for stage, out in zip(self.stages, self.stage_out):
