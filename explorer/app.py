@@ -13,12 +13,11 @@ import os
 import sys
 from pathlib import Path
 
-# Predictions run in a worker thread while the UI thread renders: OpenMP's default spin-wait
-# makes idle torch threads compete with rendering on a small CPU (measured: slider -> screen
-# 136 ms -> 105 ms with passive waiting). Must be set before torch is imported.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-from latent_model.runtime import keep_freed_memory  # noqa: E402
+from latent_model.runtime import keep_freed_memory, short_thread_spin  # noqa: E402
 
+# Predictions run in a worker thread while the UI thread renders: OpenMP's default long spin-wait
+# makes idle torch threads compete with rendering on a small CPU. Before torch is imported.
+short_thread_spin()
 keep_freed_memory()  # the decoder's temporaries are reused, not page-faulted in at every slider step
 
 
