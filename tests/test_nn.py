@@ -360,3 +360,48 @@ def test_cached_field_displacements_equal_the_direct_read_out():
     with torch.no_grad():  # one kind per batch (the fast path) as well
         one = vd(v[:1], n[:1], torch.zeros(1, Z), dirs[:1], r[:1], kind[:1], knn[:1], features=only0)["vertices"]
     assert torch.allclose(one, direct[:1], atol=1e-5)
+
+
+def test_fields_only_kinds_use_the_fields_alone_at_inference_only():
+    """A kind in vd_fields_only_kinds predicts source + prototype fields in eval mode (also in a
+    batch mixing kinds, and through the mesh-feature cache); other kinds and training are unchanged."""
+    import dataclasses
+
+    from latent_model.corpus.pairs import PAIR_KINDS
+
+    p = preset("tiny")
+    cfg = dataclasses.replace(p.model, vd_fields_only_kinds=(PAIR_KINDS[0],))
+    torch.manual_seed(0)
+    vd = LatentReRig(cfg).vertex_decoder
+    torch.manual_seed(0)
+    plain = LatentReRig(p.model).vertex_decoder
+    Z, P, K = cfg.latent, cfg.n_poses, cfg.n_pair_kinds
+    g = torch.Generator().manual_seed(4)
+    protos = torch.nn.functional.normalize(torch.randn(K, P, Z, generator=g), dim=-1) * 2.0
+    with torch.no_grad():
+        for m in (vd, plain):
+            m.set_pose_prototypes(protos)
+            m.proto_fields[:2, :3].copy_(torch.randn(2, 3, cfg.vd_proto_fields + 1, 3, generator=g))
+            for par in m.stage_out:  # a network that moves the mesh on its own
+                par.weight.normal_(generator=g)
+    plain.load_state_dict(vd.state_dict())
+    V = 200
+    v = torch.randn(2, V, 3, generator=g) * 0.3
+    n = torch.nn.functional.normalize(torch.randn(2, V, 3, generator=g), dim=-1)
+    knn = torch.stack([torch.from_numpy(knn_graph(x.numpy(), cfg.vd_knn)) for x in v])
+    dirs, r, kind = protos[[0, 1], [1, 2]] / 2.0, torch.tensor([2.0, 2.0]), torch.tensor([0, 1])
+    fields = vd.prototype_displacement(vd.field_features(v), dirs, r, kind).detach()
+
+    def run(m, train: bool, features=None):
+        m.train(train)
+        with torch.no_grad():
+            return m(v, n, torch.zeros(2, Z), dirs, r, kind, knn, features=features)["vertices"]
+
+    out = run(vd, False)
+    assert torch.allclose(out[0], v[0] + fields[0], atol=1e-5)  # kind 0: the fields alone
+    assert torch.allclose(out[1], run(plain, False)[1], atol=1e-6)  # kind 1: the whole decoder
+    assert (run(plain, False)[0] - out[0]).norm(dim=-1).mean() > 1e-3  # which differs from the fields alone
+    assert torch.allclose(run(vd, True), run(plain, True), atol=1e-6)  # training: unchanged
+    one = vd.eval()(v[:1], n[:1], torch.zeros(1, Z), dirs[:1], r[:1], kind[:1], knn[:1],
+                    features=vd.mesh_features(v[:1], n[:1]))["vertices"]
+    assert torch.allclose(one, out[:1], atol=1e-5)  # the early return, through the cache

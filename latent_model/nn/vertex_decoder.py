@@ -10,7 +10,8 @@ Five parts, as in the paper:
 Beyond the paper, an optional pose-prototype condition (`vd_prototypes`: softmax similarity of
 the delta to each pose's mean training delta), prototype fields fitted in closed form
 (`vd_proto_fields`: per kind and pose, a linear read-out of random Fourier features of the
-normalised source positions), and an optional bilinear deformation basis (`vd_basis` > 0): K displacement fields
+normalised source positions; for the kinds in `vd_fields_only_kinds` the prediction at inference
+is these fields alone), and an optional bilinear deformation basis (`vd_basis` > 0): K displacement fields
 read from the mesh features alone, mixed by K coefficients linear in the delta (see `forward`).
 No layer is sized by the vertex count, so any mesh works; neighbourhoods are computed per
 mesh (`knn_graph`) and can be cached by the caller.
@@ -24,6 +25,7 @@ import torch
 from torch import nn
 
 from latent_model.config import ModelConfig
+from latent_model.corpus.pairs import PAIR_KINDS
 from latent_model.nn.common import fourier_features, mlp
 
 POS_SCALE = 10.0  # relative positions/displacements in decimetres inside the edge MLPs
@@ -278,6 +280,11 @@ class VertexDecoder(nn.Module):
         Returns {"vertices": (B, V, 3), "coarse": (B, V, 3) displacement, "mask": (B, V, 1)}."""
         cfg = self.cfg
         B = v_src.shape[0]
+        fields_only = self.fields_only(kind)
+        if bool(fields_only.all()):  # every pair of a fields-only kind: the network is not run
+            pd = self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind) if features is None \
+                else self.cached_prototype_displacement(features, delta_dir, r, kind)
+            return {"vertices": v_src + pd, "coarse": torch.zeros_like(v_src), "mask": torch.ones_like(v_src[..., :1])}
         c = self.condition(mu_src, delta_dir, r, kind)
         f = self.vertex_features(v_src, n_src) if features is None else features.hidden
         gamma, beta = self.film(c).chunk(2, dim=-1)
@@ -308,8 +315,9 @@ class VertexDecoder(nn.Module):
             fields = self.basis(f).reshape(B, -1, cfg.vd_basis)  # (B, V*3, K): one bmm, no einsum copies
             d = d + torch.bmm(fields, coef[:, :, None]).reshape(B, -1, 3) * 0.1
         if cfg.vd_prototypes and cfg.vd_proto_fields:
-            d = d + (self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind) if features is None
-                     else self.cached_prototype_displacement(features, delta_dir, r, kind))
+            pd = self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind) if features is None \
+                else self.cached_prototype_displacement(features, delta_dir, r, kind)
+            d = d + pd
         # 3) local KNN refinement
         g = h
         for stage, out in zip(self.stages, self.stage_out):
@@ -319,4 +327,15 @@ class VertexDecoder(nn.Module):
         if cfg.vd_detail:
             det = self.detail_out(torch.nn.functional.silu(self.detail_h(h) + self.detail_c(c)[:, None]))
             d = d + torch.sigmoid(det[..., :1] - 2.0) * det[..., 1:] * 0.05
+        if bool(fields_only.any()):  # a batch mixing kinds: fields-only rows get the fields alone
+            d = torch.where(fields_only[:, None, None], pd, d)
         return {"vertices": v_src + d, "coarse": coarse, "mask": m}
+
+    def fields_only(self, kind: torch.Tensor) -> torch.Tensor:
+        """(B,) bool: pairs whose prediction is the prototype fields alone (eval mode, kinds in
+        `vd_fields_only_kinds`; never while training, so the network trains on every kind)."""
+        cfg = self.cfg
+        if self.training or not cfg.vd_fields_only_kinds or not (cfg.vd_prototypes and cfg.vd_proto_fields):
+            return torch.zeros(kind.shape, dtype=torch.bool, device=kind.device)
+        listed = torch.tensor([k in cfg.vd_fields_only_kinds for k in PAIR_KINDS], device=kind.device)
+        return listed[kind]
