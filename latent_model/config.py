@@ -220,9 +220,10 @@ def preset(name: str) -> Preset:
         # alternative (2500 steps, README "What was tried"): it learned spine and neck motion but
         # leaked 7-55 mm on still regions and lost the left arm (elbowBentLf 0.67 vs 0.84): not shipped.
         # Pose prototypes + closed-form prototype fields (1024 random Fourier features) carry the
-        # pose vocabulary; the network trains on top of them (README "Results"). Frequency scale 6
+        # pose vocabulary; the network trains on top of them, and neutral_to_pose is predicted by the
+        # fields alone at inference (README "Results"). Frequency scale 6
         # (not 12): the fields alone on held-out identities leak 40% less on still regions and
-        # explain 1.5-2.5 points more motion (elbow, shoulder, knee; measured, README "What was tried").
+        # explain 1.5-2.5 points more motion (elbow, shoulder, knee; bench/fields_alone.py, README "what limits the knees").
         model = ModelConfig(n_identities=n_train, n_poses=n_poses, vd_dir_gain=math.sqrt(512),
                             vd_prototypes=True, vd_proto_fields=1024, vd_rff_sigma=6.0,
                             vd_fields_only_kinds=("neutral_to_pose",))
