@@ -2,7 +2,8 @@
 coalescing worker, Transfer.predict, points/scalars set in place, VTK render), median over
 several slider moves; and the vertex-decoder part of each (Transfer.predict, timed by the session
 in the app's model thread: only that thread runs torch, as in the app — a second thread that
-ran torch would give OpenMP more threads than cores and throttle its spin-waiting). Targets: <= 120 ms and <= 40 ms (software rendering under Xvfb). Prints medians; never asserts.
+ran torch would give OpenMP more threads than cores and throttle its spin-waiting).
+Targets: <= 120 ms and <= 40 ms (software rendering under Xvfb). Prints medians; never asserts.
 
 Needs an X server:  xvfb-run -a python bench/bench_explorer.py [--moves 20] [--threads 1]
 """

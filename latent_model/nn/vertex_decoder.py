@@ -251,6 +251,13 @@ class VertexDecoder(nn.Module):
                 out[rows] = torch.bmm(coef[rows][:, poses][:, None], u[rows])[:, 0]
         return out.reshape(B, V, 3)
 
+    def field_displacement(self, v_src: torch.Tensor, features: MeshFeatures | None, delta_dir: torch.Tensor,
+                           r: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
+        """(B, V, 3) the prototype fields' displacement, from the mesh-feature cache when given."""
+        if features is None:
+            return self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind)
+        return self.cached_prototype_displacement(features, delta_dir, r, kind)
+
     def direction_input(self, delta_dir: torch.Tensor) -> torch.Tensor:
         """(B, Z) unit direction -> what the network reads: whitened, or scaled by the gain."""
         return delta_dir @ self.dir_whiten if self.cfg.vd_whiten else delta_dir * self.cfg.vd_dir_gain
@@ -282,8 +289,7 @@ class VertexDecoder(nn.Module):
         B = v_src.shape[0]
         fields_only = self.fields_only(kind)
         if bool(fields_only.all()):  # every pair of a fields-only kind: the network is not run
-            pd = self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind) if features is None \
-                else self.cached_prototype_displacement(features, delta_dir, r, kind)
+            pd = self.field_displacement(v_src, features, delta_dir, r, kind)
             return {"vertices": v_src + pd, "coarse": torch.zeros_like(v_src), "mask": torch.ones_like(v_src[..., :1])}
         c = self.condition(mu_src, delta_dir, r, kind)
         f = self.vertex_features(v_src, n_src) if features is None else features.hidden
@@ -315,8 +321,7 @@ class VertexDecoder(nn.Module):
             fields = self.basis(f).reshape(B, -1, cfg.vd_basis)  # (B, V*3, K): one bmm, no einsum copies
             d = d + torch.bmm(fields, coef[:, :, None]).reshape(B, -1, 3) * 0.1
         if cfg.vd_prototypes and cfg.vd_proto_fields:
-            pd = self.prototype_displacement(self.field_features(v_src), delta_dir, r, kind) if features is None \
-                else self.cached_prototype_displacement(features, delta_dir, r, kind)
+            pd = self.field_displacement(v_src, features, delta_dir, r, kind)
             d = d + pd
         # 3) local KNN refinement
         g = h
