@@ -14,7 +14,7 @@ from latent_model.corpus.sdf import SdfSampling
 PRESETS = ("tiny", "standard", "paper")
 # Bump when the geometry a config produces changes (rig, correctives, faces, sampling code):
 # it enters the corpus digest, so stale corpora are detected instead of silently reused.
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 
 @dataclass(frozen=True)

@@ -97,3 +97,21 @@ def test_latent_metrics_are_deterministic(report, model_files, tiny_corpus, tmp_
     for k, v in first.items():
         if k.startswith(("latent.", "baseline.")):
             assert again[k] == pytest.approx(v, rel=1e-6, abs=1e-9), k
+
+
+def test_evaluate_refuses_a_corpus_the_checkpoint_was_not_trained_on(model_files, tiny_corpus, tmp_path):
+    """A checkpoint records its corpus's digest; evaluating it against a corpus built by another
+    config or generator version (e.g. after a rig fix) would score it on the wrong ground truth."""
+    from latent_model.analysis.report import check_corpus_matches, evaluate
+    from latent_model.corpus.store import CorpusError
+    from latent_model.train.checkpoint import load_checkpoint
+
+    digest = tiny_corpus.manifest["config_digest"]
+    check_corpus_matches({"extra": json.dumps({"corpus_digest": digest})}, model_files[0], tiny_corpus)
+    check_corpus_matches({}, model_files[0], tiny_corpus)  # older checkpoints without the record pass
+    model, p, _ = load_checkpoint(model_files[0])
+    stale = tmp_path / "stale.safetensors"
+    save_checkpoint(stale, model, p, "all", 0, extra={"corpus_digest": "0123456789abcdef"})
+    with pytest.raises(CorpusError, match="0123456789abcdef.*lrr corpus build --preset tiny --force"):
+        evaluate(stale, model_files[1], tiny_corpus.path, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out" / "metrics.json").exists()

@@ -71,6 +71,19 @@ def _table(header: list[str], rows: list[list]) -> str:
     return "\n".join(lines)
 
 
+def check_corpus_matches(meta: dict, checkpoint: Path, corpus) -> None:
+    """Raise CorpusError when the checkpoint was trained on a corpus of another config or
+    generator version (its ground truth would not be the geometry the model learnt)."""
+    from latent_model.corpus.store import CorpusError
+
+    trained_on = json.loads(meta.get("extra", "{}")).get("corpus_digest")
+    if trained_on and trained_on != corpus.manifest["config_digest"]:
+        raise CorpusError(f"checkpoint {checkpoint} was trained on a corpus with digest {trained_on}, but corpus "
+                          f"{corpus.path} has digest {corpus.manifest['config_digest']} (another config or generator "
+                          f"version): rebuild the corpus with `lrr corpus build --preset {corpus.config.preset} --force` "
+                          f"or evaluate a checkpoint trained on this corpus")
+
+
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
              progress: bool = True) -> Path:
     import torch
@@ -92,10 +105,11 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    model, preset, _ = load_checkpoint(checkpoint)
+    model, preset, meta = load_checkpoint(checkpoint)
     model.eval()
     bank = LatentBank.load(bank_path)
     corpus = Corpus(corpus_dir or default_corpus_dir(preset.name))
+    check_corpus_matches(meta, checkpoint, corpus)
     out.mkdir(parents=True, exist_ok=True)
     samples = SampleCache(corpus)
     test = corpus.split_indices("test")

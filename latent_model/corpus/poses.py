@@ -7,7 +7,11 @@ true mirrors by construction (see `rig.resolve_axis` for how axes mirror).
 
 Axis rules (resolved per identity from its own rest skeleton, see `rig.py`):
 - ``"hinge"``: flexion axis of the joint, cross(parent segment, child segment); positive
-  angles bend the joint further in the direction it is already bent (elbow, knee).
+  angles bend the joint further in the direction it is already bent (elbow). Not for the
+  knee: its ~10 deg bind-pose flexion is of the order of a knock-knee or bow-leg angle, so
+  the cross product swung up to 64 deg out of the lateral axis from identity to identity
+  (measured on the standard corpus: 4 of 14 held-out legs bent mostly sideways). The knee
+  flexes about the fixed lateral axis instead.
 - ``"palm"``: the hand's flexion axis (across the knuckles, index to pinky), oriented so
   positive angles curl the fingers toward the palm.
 - ``"+x" "-x" "+y" "-y" "+z" "-z"``: fixed axes of the rest frame (Z up, faces -Y, +X =
@@ -66,7 +70,7 @@ class PoseConfig:
 _BODY_LEFT: dict[str, tuple[JointRotation, ...]] = {
     "elbowBent": (JointRotation("lowerarm01.L", "hinge", 47.0),),
     "elbowSuperBent": (JointRotation("lowerarm01.L", "hinge", 97.0),),
-    "kneeBent": (JointRotation("lowerleg01.L", "hinge", 80.0),),
+    "kneeBent": (JointRotation("lowerleg01.L", "+x", 80.0),),  # shank backwards; Rt mirrors to +x too
     "clavicleDownward": (JointRotation("clavicle.L", "+y", 20.0),),
     "shoulderRaise": (JointRotation("upperarm01.L", "-y", 50.0),),
     "shoulderForward": (JointRotation("upperarm01.L", "-x", 60.0),),
