@@ -136,3 +136,16 @@ def test_opened_mesh_has_no_truth_and_exports_in_its_frame(session, tmp_path):
         session.compute(Selection(target=name, kind="skinning_to_skinning_plus_blendshape", pose="elbowBentLf"))
     with pytest.raises(ValueError, match="no such file"):
         session.open_mesh(tmp_path / "nope.obj")
+
+
+@needs_model
+def test_shipped_model_was_trained_on_the_current_rig():
+    """The window regenerates ground truth through today's rig code; the shipped checkpoint
+    records the digest of the corpus it was trained on. A rig fix (a new generator version)
+    without a retrained model would show the model against a truth it never saw."""
+    from latent_model.config import corpus_preset
+    from latent_model.train.checkpoint import read_metadata
+
+    meta = read_metadata(ShippedPaths.at().checkpoint)
+    specs = json.loads(ShippedPaths.at().identities.read_text())
+    assert json.loads(meta["extra"])["corpus_digest"] == corpus_preset(specs["preset"]).digest()
