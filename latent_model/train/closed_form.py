@@ -5,10 +5,11 @@
   of the source mesh, fitted to the pairs' displacements (features scaled by the amount the
   decoder gives the field for the pair's own delta).
 
-Measured on the standard corpus (14 held-out identities, the fields alone with the mean amount,
-before any SGD; `bench/fields_alone.py`, sigma 6): explained motion / static leakage kneeBentLf
-0.69 / 1.7 mm, elbowSuperBentLf 0.87 / 1.4, shoulderRaiseLf 0.89 / 1.0, shoulderForwardRt
-0.88 / 1.2; the shipped model's figures are in the README results.
+Measured on the standard corpus (generator version 3; 14 held-out identities, the fields alone
+with the mean amount, before any SGD; `bench/fields_alone.py`, sigma 6): explained motion / static
+leakage kneeBentLf 0.86 / 1.0 mm (0.69 / 1.7 on version 2, whose knee axes disagreed between
+bodies), elbowSuperBentLf 0.87 / 1.4, shoulderRaiseLf 0.89 / 1.0, shoulderForwardRt 0.88 / 1.2;
+the shipped model's figures are in the README results.
 """
 from __future__ import annotations
 
