@@ -277,17 +277,25 @@ def test_pose_prototypes_name_the_pose_and_round_trip(tmp_path):
     assert not old.vd_prototypes and not hasattr(LatentReRig(old).vertex_decoder, "prototypes")
 
 
-def test_prototype_fields_act_only_for_their_pose_and_kind_and_scale_with_r():
-    """A (kind, pose) field adds nothing at start, moves the mesh only when the delta is that
-    pose's and the pair that kind, and its motion is linear in r (the magnitude slider)."""
+def _decoder_with_random_prototypes(seed: int, kinds: int):
+    """(tiny preset, its vertex decoder in eval mode, the generator after drawing, prototypes
+    (K, P, Z)): random prototypes of norm 2 for the first `kinds` pair kinds, none for the rest."""
     p = preset("tiny")
     torch.manual_seed(0)
     vd = LatentReRig(p.model).vertex_decoder.eval()
     Z, P, K = p.model.latent, p.model.n_poses, p.model.n_pair_kinds
-    g = torch.Generator().manual_seed(2)
+    g = torch.Generator().manual_seed(seed)
     protos = torch.zeros(K, P, Z)
-    protos[0] = torch.nn.functional.normalize(torch.randn(P, Z, generator=g), dim=-1) * 2.0
+    protos[:kinds] = torch.nn.functional.normalize(torch.randn(kinds, P, Z, generator=g), dim=-1) * 2.0
     vd.set_pose_prototypes(protos)
+    return p, vd, g, protos
+
+
+def test_prototype_fields_act_only_for_their_pose_and_kind_and_scale_with_r():
+    """A (kind, pose) field adds nothing at start, moves the mesh only when the delta is that
+    pose's and the pair that kind, and its motion is linear in r (the magnitude slider)."""
+    p, vd, g, protos = _decoder_with_random_prototypes(seed=2, kinds=1)
+    Z = p.model.latent
     V = 300
     v = torch.randn(1, V, 3, generator=g) * 0.3
     n = torch.nn.functional.normalize(torch.randn(1, V, 3, generator=g), dim=-1)
@@ -328,14 +336,8 @@ def test_cached_field_displacements_equal_the_direct_read_out():
     blended delta and more vertices than one chunk; a kind's cache is filled only when used."""
     from latent_model.nn.vertex_decoder import MeshFeatures
 
-    p = preset("tiny")
-    torch.manual_seed(0)
-    vd = LatentReRig(p.model).vertex_decoder.eval()
-    Z, P, K = p.model.latent, p.model.n_poses, p.model.n_pair_kinds
-    g = torch.Generator().manual_seed(3)
-    protos = torch.zeros(K, P, Z)
-    protos[:2] = torch.nn.functional.normalize(torch.randn(2, P, Z, generator=g), dim=-1) * 2.0
-    vd.set_pose_prototypes(protos)
+    p, vd, g, protos = _decoder_with_random_prototypes(seed=3, kinds=2)
+    Z = p.model.latent
     with torch.no_grad():
         vd.proto_fields[0, :5].normal_(generator=g)  # kind 0: five fitted poses; kind 1: none
         vd.proto_fields[0, 7].normal_(generator=g)
