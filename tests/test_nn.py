@@ -407,3 +407,27 @@ def test_fields_only_kinds_use_the_fields_alone_at_inference_only():
     one = vd.eval()(v[:1], n[:1], torch.zeros(1, Z), dirs[:1], r[:1], kind[:1], knn[:1],
                     features=vd.mesh_features(v[:1], n[:1]))["vertices"]
     assert torch.allclose(one, out[:1], atol=1e-5)  # the early return, through the cache
+
+
+def test_alignment_is_zero_for_parallel_same_pose_deltas_and_ignores_other_poses():
+    """Same-pose deltas of any length that point the same way cost 0; a 90 degree pair costs 1;
+    deltas of different poses never enter (that is InfoNCE's job)."""
+    from latent_model.nn import losses
+
+    d = torch.tensor([[1.0, 0, 0], [3.0, 0, 0], [0, 1.0, 0], [0, 0, 2.0]])
+    assert losses.alignment(d, torch.tensor([0, 0, 1, 2])).item() == pytest.approx(0.0, abs=1e-6)
+    assert losses.alignment(d, torch.tensor([0, 1, 0, 2])).item() == pytest.approx(1.0, abs=1e-6)
+    assert losses.alignment(d, torch.tensor([0, 1, 2, 3])).item() == 0.0  # no same-pose pair
+    # the gradient turns a misaligned delta toward its pose's other deltas
+    x = torch.tensor([[1.0, 0, 0], [0.6, 0.8, 0]], requires_grad=True)
+    losses.alignment(x, torch.tensor([0, 0])).backward()
+    assert x.grad[1, 0] < 0 and x.grad[1, 1] > 0  # descent raises its x share, lowers its y share
+
+
+def test_presets_saved_before_the_alignment_term_read_back_without_it():
+    from latent_model.config import Preset
+
+    d = preset("tiny").to_dict()
+    assert d["loss"]["align"] > 0  # the current default trains with it
+    del d["loss"]["align"]
+    assert Preset.from_dict(d).loss.align == 0.0

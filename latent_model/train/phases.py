@@ -50,6 +50,8 @@ class PhaseANet(nn.Module):
         direction, _ = normalised_delta(delta[rows])
         t["pose_cls"] = F.cross_entropy(self.pose_head(direction), b.pose_label[rows])
         t["contrast"] = losses.contrastive(delta[rows], b.pose_label[rows], w.contrast_temperature)
+        if w.align:
+            t["align"] = losses.alignment(delta[rows], b.pose_label[rows])
         if len(b.variant_rows):
             v = b.variant_rows
             t["variant"] = losses.composition(delta[v[:, 0]], delta[v[:, 1]] + delta[v[:, 2]])
