@@ -147,9 +147,10 @@ class LossWeights:
     combo: float = 0.2
     contrast: float = 0.1
     contrast_temperature: float = 0.1
-    # alignment half of L_contrast: mean 1 - cos of same-pose deltas across identities. Held-out
-    # elbowBentLf cosine after the standard Phase A: 0.920 without it, 0.956 at 1.0, 0.959 at 3.0
-    align: float = 3.0
+    # alignment half of L_contrast: mean 1 - cos of same-pose deltas across identities. Off in
+    # `standard`: at 3.0 held-out elbowBentLf rose from 0.920 to 0.959, but different poses' deltas
+    # drew together too (body prototypes' mutual cosine 0.26 -> 0.41) and transfer leaked more (README)
+    align: float = 0.0
     pos: float = 1.0
     # per-pair RMSE relative to the pair's own motion (+2 mm): small pairs (correctives, faces,
     # fingers) count, so the decoder learns to keep still where the truth barely moves
@@ -201,10 +202,8 @@ class Preset:
             known = {f.name for f in dataclasses.fields(cls)} if cls else None
             return {k: tuple(v) if isinstance(v, list) else v for k, v in x.items() if known is None or k in known}
 
-        # checkpoints from before the alignment term were trained without it
-        loss = {"align": 0.0, **d["loss"]}
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), ModelConfig(**tup(d["model"])),
-                      TrainConfig(**tup(d["train"], TrainConfig)), LossWeights(**loss))
+                      TrainConfig(**tup(d["train"], TrainConfig)), LossWeights(**d["loss"]))
 
 
 def preset(name: str) -> Preset:
@@ -219,7 +218,7 @@ def preset(name: str) -> Preset:
                             vd_prototypes=True, vd_proto_fields=64, vd_rff_sigma=3.0, vd_fit_vertices=200)  # tests exercise every switch
         train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
                             b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
-        return Preset(name, corpus, model, train)
+        return Preset(name, corpus, model, train, LossWeights(align=1.0))
     if name == "standard":
         # The shipped model. vd_basis=64 + vd_whiten with static 0.2 / pos_rel 0 was measured as an
         # alternative (2500 steps, README "What was tried"): it learned spine and neck motion but

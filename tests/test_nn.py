@@ -423,11 +423,3 @@ def test_alignment_is_zero_for_parallel_same_pose_deltas_and_ignores_other_poses
     losses.alignment(x, torch.tensor([0, 0])).backward()
     assert x.grad[1, 0] < 0 and x.grad[1, 1] > 0  # descent raises its x share, lowers its y share
 
-
-def test_presets_saved_before_the_alignment_term_read_back_without_it():
-    from latent_model.config import Preset
-
-    d = preset("tiny").to_dict()
-    assert d["loss"]["align"] > 0  # the current default trains with it
-    del d["loss"]["align"]
-    assert Preset.from_dict(d).loss.align == 0.0
