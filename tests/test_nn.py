@@ -422,4 +422,3 @@ def test_alignment_is_zero_for_parallel_same_pose_deltas_and_ignores_other_poses
     x = torch.tensor([[1.0, 0, 0], [0.6, 0.8, 0]], requires_grad=True)
     losses.alignment(x, torch.tensor([0, 0])).backward()
     assert x.grad[1, 0] < 0 and x.grad[1, 1] > 0  # descent raises its x share, lowers its y share
-
