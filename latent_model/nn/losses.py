@@ -31,6 +31,12 @@ def composition(total: torch.Tensor, parts: torch.Tensor) -> torch.Tensor:
     return (num / den).mean()
 
 
+def _same_label_pairs(labels: torch.Tensor) -> torch.Tensor:
+    """(N,) labels -> (N, N) bool: i != j with the same label (the positives of both delta terms)."""
+    eye = torch.eye(len(labels), dtype=torch.bool, device=labels.device)
+    return (labels[:, None] == labels[None, :]) & ~eye
+
+
 def contrastive(deltas: torch.Tensor, labels: torch.Tensor, temperature: float) -> torch.Tensor:
     """Supervised InfoNCE on normalised deltas (N, Z): same pose aligns, different poses separate."""
     n = deltas.shape[0]
@@ -38,9 +44,8 @@ def contrastive(deltas: torch.Tensor, labels: torch.Tensor, temperature: float) 
         return deltas.new_zeros(())
     z = F.normalize(deltas, dim=-1)
     sim = z @ z.T / temperature
-    eye = torch.eye(n, dtype=torch.bool, device=z.device)
-    sim = sim.masked_fill(eye, -1e9)
-    pos = (labels[:, None] == labels[None, :]) & ~eye
+    sim = sim.masked_fill(torch.eye(n, dtype=torch.bool, device=z.device), -1e9)
+    pos = _same_label_pairs(labels)
     has = pos.any(dim=1)
     if not has.any():
         return deltas.new_zeros(())
@@ -57,7 +62,7 @@ def alignment(deltas: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
     keeps pulling until the directions agree.
     """
     z = F.normalize(deltas, dim=-1)
-    pos = (labels[:, None] == labels[None, :]) & ~torch.eye(len(z), dtype=torch.bool, device=z.device)
+    pos = _same_label_pairs(labels)
     if not pos.any():
         return deltas.new_zeros(())
     return (1.0 - (z @ z.T)[pos]).mean()
