@@ -125,6 +125,10 @@ class ModelConfig:
     vd_rff_seed: int = 0
     vd_fit_ridge: float = 1e-2  # ridge, relative to the mean diagonal of the Gram matrix
     vd_fit_vertices: int = 1500  # vertices per pair used by the fit (random subset)
+    # True: each pair's features are scaled by its delta's amount along the prototype (the read-out
+    # reproduces every pair at its own amount); False: every pair counts at amount 1 (the field is
+    # the mean displacement, the amount at inference still scales it).
+    vd_fit_scaled: bool = True
     # pair kinds whose fields are fitted: neutral sources are shared by every pose of an identity
     # (one Gram matrix each, 35 s in all); each posed source needs its own (~14 s per field on 2 cores)
     vd_fit_kinds: tuple[str, ...] = ("neutral_to_pose",)

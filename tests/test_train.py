@@ -107,3 +107,34 @@ def test_closed_form_fields_reproduce_the_training_pairs(run_a, tiny_corpus):
     info = fit_prototype_fields(vd, sampler, c, mu, seed=0, progress=False)
     assert info["pairs"] > 0 and vd.proto_fields.abs().sum() > 0
     assert ratio() < 0.6
+
+
+def test_unscaled_field_fit_ignores_each_pairs_latent_amount(run_a, tiny_corpus):
+    """vd_fit_scaled=False: every pair counts at amount 1, so doubling one training pair's latent
+    delta leaves the fitted fields unchanged; the scaled fit (the default) weighs that pair by its
+    amount and changes."""
+    import dataclasses
+
+    from latent_model.train.closed_form import fit_prototype_fields, pose_prototypes
+    from latent_model.train.data import PhaseBSampler
+    from latent_model.train.phases import encode_rows
+
+    run, p, _ = run_a
+    model, _, _ = load_checkpoint(run / "phase_a.safetensors")
+    c = tiny_corpus
+    sampler = PhaseBSampler(c, p, 0)
+    rows = sorted({c.row(s) for q in sampler.by_kind["neutral_to_pose"] for s in sampler.states(q)})
+    mu = encode_rows(model, c, rows, torch.device("cpu"), progress=False)
+    vd = model.vertex_decoder
+    vd.set_pose_prototypes(pose_prototypes(sampler, c, mu, p.model.n_poses))
+    s, t = sampler.states(sampler.by_kind["neutral_to_pose"][0])
+    doubled = mu.clone()
+    doubled[c.row(t)] = mu[c.row(s)] + 2 * (mu[c.row(t)] - mu[c.row(s)])
+
+    def fields(scaled: bool, rows_mu: torch.Tensor) -> torch.Tensor:
+        vd.cfg = dataclasses.replace(vd.cfg, vd_fit_scaled=scaled)
+        fit_prototype_fields(vd, sampler, c, rows_mu, seed=0, progress=False)
+        return vd.proto_fields.clone()
+
+    assert torch.equal(fields(False, mu), fields(False, doubled))
+    assert not torch.allclose(fields(True, mu), fields(True, doubled))

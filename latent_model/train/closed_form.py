@@ -3,7 +3,9 @@
 - pose prototypes: the mean latent delta of every (pair kind, pose) over the training identities;
 - prototype fields: per (kind, pose) a ridge read-out of the decoder's random Fourier features
   of the source mesh, fitted to the pairs' displacements (features scaled by the amount the
-  decoder gives the field for the pair's own delta).
+  decoder gives the field for the pair's own delta, or, with `vd_fit_scaled` off, at amount 1:
+  the field is then the pose's mean displacement, which leaks less on still regions when the
+  latent amounts vary between bodies for reasons the motion does not share).
 
 Measured on the standard corpus (generator version 3; 14 held-out identities, the fields alone
 with the mean amount, before any SGD; `bench/fields_alone.py`, sigma 6): explained motion / static
@@ -47,7 +49,8 @@ def fit_prototype_fields(vd: VertexDecoder, sampler: PhaseBSampler, corpus: Corp
     be set). Each pair contributes a random subset of `vd_fit_vertices` source vertices; its
     features are scaled by s = (the pair's delta along the prototype) / |mean delta|, the amount
     the decoder gives the field for that delta (`prototype_coefficients`), so the read-out
-    reproduces the pair. Returns {"pairs": n, "fields": n fitted}."""
+    reproduces the pair; with cfg.vd_fit_scaled off, every pair with a positive amount counts at
+    amount 1. Returns {"pairs": n, "fields": n fitted}."""
     cfg = vd.cfg
     rng = np.random.default_rng(seed)
     dev = vd.proto_fields.device
@@ -84,6 +87,8 @@ def fit_prototype_fields(vd: VertexDecoder, sampler: PhaseBSampler, corpus: Corp
             scale = (delta @ vd.prototypes[k, pose].double() / rho).clamp(0.0, cfg.vd_coef_max)
             if scale <= 0:
                 continue
+            if not cfg.vd_fit_scaled:
+                scale = torch.ones_like(scale)
             y = torch.from_numpy(corpus.vertices(t)[sub] - corpus.vertices(s)[sub]).double().to(dev)
             gram += scale * scale * xtx
             rhs += scale * (x.T @ y)
