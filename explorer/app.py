@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--pose-b", help="pose B to blend toward")
     ap.add_argument("--blend", type=float, default=0.0, help="blend A -> B in [0, 1]")
     ap.add_argument("--magnitude", type=float, default=1.0, help="delta magnitude in [0, 2]")
-    ap.add_argument("--strategy", default="nearest", help="mean, nearest or identity:<id>")
+    ap.add_argument("--strategy", default="mean", help="mean (default), nearest or identity:<id>")
     ap.add_argument("--displacement", action="store_true", help="colour the prediction by displacement, not error")
     ap.add_argument("--compare", action="store_true", help="compare mean vs nearest side by side")
     ap.add_argument("--mesh", help="open this mesh file and make it the target")

@@ -41,7 +41,9 @@ class Selection:
     pose_b: str | None = None
     blend: float = 0.0  # 0 = pose A, 1 = pose B
     magnitude: float = 1.0  # scales r_delta, 0..2
-    strategy: str = "nearest_identity_delta"  # mean_pose_delta | nearest_identity_delta | identity:<id>
+    # mean_pose_delta | nearest_identity_delta | identity:<id>; mean by default: on held-out bodies it
+    # transfers better than a single identity's delta on every broad body pose (README Results)
+    strategy: str = "mean_pose_delta"
     colour: str = "error"  # error | displacement
     compare: bool = False
     wireframe: bool = False

@@ -113,9 +113,10 @@ class ModelConfig:
     vd_basis: int = 0  # fields of the bilinear deformation basis (0: none, as checkpoints before it)
     # Pose-prototype condition: the delta direction's softmax cosine similarity to the mean training
     # direction of every pose (n_poses slots, set before Phase B) joins the condition vector. Nearest
-    # prototype names the pose of a held-out identity's delta 96% of the time on skeletal poses.
+    # prototype names the pose of a held-out identity's delta 87% of the time on single body poses
+    # (bench/prototype_naming.py).
     vd_prototypes: bool = False
-    vd_proto_temp: float = 0.003  # sharp: many pose prototypes are > 0.97 apart in cosine
+    vd_proto_temp: float = 0.003  # sharp: many pose prototypes are > 0.97 apart in cosine (standard: 0.001)
     vd_coef_max: float = 3.0  # cap on a field's amount (3x the mean delta's)
     # Prototype fields (needs vd_prototypes): random Fourier features (this many; 0 = off) of the
     # height-normalised source positions, one ridge read-out per (pair kind, pose) fitted in
@@ -151,9 +152,10 @@ class LossWeights:
     combo: float = 0.2
     contrast: float = 0.1
     contrast_temperature: float = 0.1
-    # alignment half of L_contrast: mean 1 - cos of same-pose deltas across identities. Off in
-    # `standard`: at 3.0 held-out elbowBentLf rose from 0.920 to 0.959, but different poses' deltas
-    # drew together too (body prototypes' mutual cosine 0.26 -> 0.41) and transfer leaked more (README)
+    # alignment half of L_contrast: mean 1 - cos of same-pose deltas across identities (0: off, as
+    # checkpoints before it). 3.0 in `standard`: held-out elbowBentLf 0.920 -> 0.959; it also draws
+    # different poses' deltas closer (body prototypes' mutual cosine 0.26 -> 0.41), which the sharper
+    # prototype temperature of `standard` answers (README "The alignment term")
     align: float = 0.0
     pos: float = 1.0
     # per-pair RMSE relative to the pair's own motion (+2 mm): small pairs (correctives, faces,
@@ -232,12 +234,16 @@ def preset(name: str) -> Preset:
         # fields alone at inference (README "Results"). Frequency scale 6
         # (not 12): the fields alone on held-out identities leak 40% less on still regions and
         # explain 1.5-2.5 points more motion (elbow, shoulder, knee; bench/fields_alone.py, README "what limits the knees").
+        # With the alignment term the prototypes of related poses sit closer (kneeBentLf vs
+        # kneeBentLf+kneeBentRt 0.99): temperature 0.001 keeps the mean knee delta's weight on its own
+        # field (0.955 at 0.003: 2.6 mm leakage), and the unscaled field fit halves shoulder and
+        # clavicle leakage (README "The alignment term").
         model = ModelConfig(n_identities=n_train, n_poses=n_poses, vd_dir_gain=math.sqrt(512),
-                            vd_prototypes=True, vd_proto_fields=1024, vd_rff_sigma=6.0,
-                            vd_fields_only_kinds=("neutral_to_pose",))
+                            vd_prototypes=True, vd_proto_temp=0.001, vd_proto_fields=1024, vd_rff_sigma=6.0,
+                            vd_fit_scaled=False, vd_fields_only_kinds=("neutral_to_pose",))
         # sized for <= 90 min on 2 CPU cores: A ~0.3 s/step, B ~0.75 s/step with the fields (README)
         train = TrainConfig(a_steps=6000, a_lr=1e-3, b_steps=3000)
-        return Preset(name, corpus, model, train)
+        return Preset(name, corpus, model, train, LossWeights(align=3.0))
     if name == "paper":
         model = ModelConfig(vd_dir_gain=math.sqrt(512), enc_hidden=(128, 256), enc_out_hidden=1024, sdf_hidden=512, sdf_layers=8,
                             n_identities=n_train, n_poses=n_poses, vd_hidden=128, vd_cond=256, vd_bones=32, vd_knn=12, vd_edge=64)

@@ -97,8 +97,9 @@ def add_arguments(p) -> None:
     p.add_argument("--pose", required=True, help="pose name, e.g. elbowBentLf (`lrr corpus poses` lists them)")
     p.add_argument("--pose-b", help="second pose to blend toward")
     p.add_argument("--blend", type=float, default=0.0, help="0 = pose A, 1 = pose B (default 0)")
-    p.add_argument("--strategy", default="nearest",
-                   help="mean (mean pose delta), nearest (nearest identity delta, default) or identity:<id>")
+    p.add_argument("--strategy", default="mean",
+                   help="mean (mean pose delta, default: the better one on held-out bodies, README Results), "
+                        "nearest (nearest identity delta) or identity:<id>")
     p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r (0-2; default 1)")
     p.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose)")
     p.add_argument("--up", default="auto", choices=("auto", "y", "z"), help="up axis of the file (default: detected)")

@@ -183,7 +183,7 @@ class VertexDecoder(nn.Module):
                           cosines: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
         """(B, Z) direction, (B,) kind -> (B, n_poses) softmax of its cosine to each of that kind's
         pose prototypes (temperature vd_proto_temp): near one-hot for a recognised pose (the
-        nearest prototype names a held-out identity's skeletal pose 96% of the time), a mixture
+        nearest prototype names a held-out identity's single body pose 87% of the time), a mixture
         for blends; zeros for a kind without prototypes (before they are set)."""
         cos, valid = self.prototype_cosines(delta_dir, kind) if cosines is None else cosines
         w = torch.softmax((cos / self.cfg.vd_proto_temp).masked_fill(~valid, float("-inf")), dim=-1)
