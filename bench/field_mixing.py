@@ -37,8 +37,7 @@ def main() -> None:
     from latent_model.shipped import ShippedPaths
     from latent_model.train.checkpoint import read_metadata
     from latent_model.train.closed_form import fit_prototype_fields
-    from latent_model.train.data import PhaseBSampler
-    from latent_model.train.phases import encode_rows
+    from latent_model.train.phases import field_fit_seed, phase_b_inputs
     from latent_model.transfer import Transfer
 
     paths = ShippedPaths.at()
@@ -47,9 +46,7 @@ def main() -> None:
     preset = Preset.from_dict(json.loads(read_metadata(ckpt)["preset"]))
     c = Corpus(default_corpus_dir(preset.corpus.preset))
     vd = tr.model.vertex_decoder
-    sampler = PhaseBSampler(c, preset, preset.train.seed + 2000)  # as train_phase_b (rank 0)
-    rows = sorted({c.row(s) for pairs in sampler.by_kind.values() for p in pairs for s in sampler.states(p)})
-    mu_rows = encode_rows(tr.model, c, rows, tr.device, progress=False)
+    sampler, mu_rows = phase_b_inputs(tr.model, preset, c, tr.device, progress=False)  # as train_phase_b
     test = c.split_indices("test")
     sources = {i: c.state(i, None, "neutral") for i in test}
     mus = dict(zip(test, encode_states(tr.model, c, list(sources.values()), tr.device)))
@@ -57,7 +54,7 @@ def main() -> None:
     temps = [float(t) for t in args.temperatures.split(",")]
     for scaled in (True, False):
         vd.cfg = dataclasses.replace(vd.cfg, vd_fit_scaled=scaled)
-        fit_prototype_fields(vd, sampler, c, mu_rows, preset.train.seed + 3000, progress=False)
+        fit_prototype_fields(vd, sampler, c, mu_rows, field_fit_seed(preset), progress=False)
         for temp in temps:
             vd.cfg = dataclasses.replace(vd.cfg, vd_proto_temp=temp)
             res: dict[tuple[str, str], list[tuple[float, float]]] = {}

@@ -131,20 +131,32 @@ def freeze_encoder(model: LatentReRig) -> None:
             p.requires_grad_(False)
 
 
+def phase_b_inputs(model: LatentReRig, preset: Preset, corpus: Corpus, device: torch.device, rank: int = 0,
+                   progress: bool = True) -> tuple[PhaseBSampler, torch.Tensor]:
+    """The Phase B pair sampler of a rank and the frozen encoder's mu of every state its pairs use
+    (rows indexed by corpus row): what the closed-form parts are set from (also bench/field_mixing.py)."""
+    sampler = PhaseBSampler(corpus, preset, preset.train.seed + 2000 + 1000 * rank)
+    rows = sorted({corpus.row(s) for pairs in sampler.by_kind.values() for p in pairs for s in sampler.states(p)})
+    return sampler, encode_rows(model, corpus, rows, device, progress=progress)
+
+
+def field_fit_seed(preset: Preset) -> int:
+    """Seed of the prototype fields' vertex subsets."""
+    return preset.train.seed + 3000
+
+
 def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: Path, device: torch.device,
                   fresh: bool = False, steps: int | None = None, progress: bool = True) -> dict:
     rank, _ = dist_info()
     torch.manual_seed(preset.train.seed + 7 + rank)
     freeze_encoder(model)
-    sampler = PhaseBSampler(corpus, preset, preset.train.seed + 2000 + 1000 * rank)
-    rows = sorted({corpus.row(s) for pairs in sampler.by_kind.values() for p in pairs for s in sampler.states(p)})
-    mu_rows = encode_rows(model, corpus, rows, device, progress=progress and rank == 0)
+    sampler, mu_rows = phase_b_inputs(model, preset, corpus, device, rank, progress=progress and rank == 0)
     if preset.model.vd_whiten:
         model.vertex_decoder.set_direction_whitening(training_directions(sampler, corpus, mu_rows).to(device))
     if preset.model.vd_prototypes:
         model.vertex_decoder.set_pose_prototypes(pose_prototypes(sampler, corpus, mu_rows, preset.model.n_poses).to(device))
         if preset.model.vd_proto_fields:
-            fit_prototype_fields(model.vertex_decoder, sampler, corpus, mu_rows, preset.train.seed + 3000,
+            fit_prototype_fields(model.vertex_decoder, sampler, corpus, mu_rows, field_fit_seed(preset),
                                  progress=progress and rank == 0)
     get, put = _rng_accessors(sampler)
     net = PhaseBNet(model, preset, corpus.faces, mu_rows).to(device)
