@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from latent_model.config import corpus_preset  # noqa: E402
+from latent_model.corpus.config import corpus_preset  # noqa: E402
 from latent_model.corpus.build import build  # noqa: E402
 from latent_model.corpus.store import Layout  # noqa: E402
 

@@ -27,7 +27,8 @@ from latent_model.corpus.store import Corpus  # noqa: E402
 from latent_model.nn.model import LatentReRig  # noqa: E402
 from latent_model.nn.vertex_decoder import knn_graph  # noqa: E402
 from latent_model.train.data import PhaseASampler, PhaseBSampler  # noqa: E402
-from latent_model.train.phases import PhaseANet, PhaseBNet, freeze_encoder, normalised_delta  # noqa: E402
+from latent_model.nn.delta import normalised_delta  # noqa: E402
+from latent_model.train.phases import PhaseANet, PhaseBNet, freeze_encoder  # noqa: E402
 
 
 def timed(fn, n: int, warm: int = 1) -> list[float]:
@@ -101,13 +102,14 @@ def main() -> None:
     s = c.state(c.split_indices("test")[0], None, "neutral")
     v = torch.from_numpy(c.vertices(s))[None]
     n = torch.from_numpy(c.normals(s))[None]
-    t_knn = statistics.median(timed(lambda: knn_graph(v[0].numpy(), p.model.vd_knn), 3))
-    knn = torch.from_numpy(knn_graph(v[0].numpy(), p.model.vd_knn))[None]
+    t_knn = statistics.median(timed(lambda: knn_graph(v[0].numpy(), p.model.decoder.knn), 3))
+    knn = torch.from_numpy(knn_graph(v[0].numpy(), p.model.decoder.knn))[None]
     mu = torch.randn(1, p.model.latent)
     d, r = normalised_delta(torch.randn(1, p.model.latent))
     kind = torch.tensor([0])
     with torch.no_grad():
-        t_vd = timed(lambda: model.vertex_decoder(v, n, mu, d, r, kind, knn), 15, warm=3)
+        w, disp = model.pose_fields.weights(d, kind), model.pose_fields.displacement(v, d, r, kind)
+        t_vd = timed(lambda: model.vertex_decoder(v, n, mu, d, r, kind, knn, w, disp), 15, warm=3)
         p1, v1 = torch.from_numpy(pts[None]).float(), torch.from_numpy(vals[None]).float()
         t_e = timed(lambda: model.encoder(p1, v1), 15, warm=3)
     print(f"inference: vertex decoder on {v.shape[1]} vertices (neighbourhoods cached): median {statistics.median(t_vd) * 1000:.1f} ms "

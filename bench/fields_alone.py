@@ -1,7 +1,7 @@
-"""How far the closed-form prototype fields alone carry a pose to unseen identities, for several
+"""How far the closed-form pose fields alone carry a pose to unseen identities, for several
 random-Fourier frequency scales: ridge fit of one field per pose on the training identities'
-neutral -> pose pairs (features as the vertex decoder's `field_features`: positions centred on the
-bounding box, divided by the height), applied with the mean amount to every held-out identity.
+neutral -> pose pairs (the features of `PoseFields.features`: positions centred on the bounding box,
+divided by the height), applied with the mean amount to every held-out identity.
 Prints explained motion (1 - err / err of no motion) and static leakage (mm) per pose and scale;
 `--self-fit` fits each held-out identity on its own pair instead (the capacity of the features).
 
@@ -25,8 +25,9 @@ def main() -> None:
     ap.add_argument("--self-fit", action="store_true")
     ap.add_argument("--corpus", help="corpus directory (default: the standard preset's)")
     args = ap.parse_args()
-    from latent_model.config import default_corpus_dir
+    from latent_model.config import ModelConfig, PoseFieldsConfig, default_corpus_dir
     from latent_model.corpus.store import Corpus
+    from latent_model.nn.pose_fields import PoseFields
 
     c = Corpus(args.corpus or default_corpus_dir("standard"))
     train, test = c.split_indices("train"), c.split_indices("test")
@@ -35,12 +36,11 @@ def main() -> None:
             return c.vertices(c.state(j, None, "neutral")), c.vertices(c.state(j, pose, "skinning_plus_blendshape"))
 
         for sigma in (float(s) for s in args.sigmas.split(",")):
-            freq = torch.randn(3, args.features // 2, generator=torch.Generator().manual_seed(0)).numpy() * sigma * np.pi
+            fields = PoseFields(ModelConfig(fields=PoseFieldsConfig(features=args.features, rff_sigma=sigma)))
 
             def feats(v: np.ndarray) -> np.ndarray:
-                lo, hi = v.min(0), v.max(0)
-                a = (v - (lo + hi) / 2) / (hi - lo)[2] @ freq
-                return np.concatenate([np.cos(a), np.sin(a), np.ones_like(a[:, :1])], 1)
+                with torch.no_grad():
+                    return fields.features(torch.from_numpy(np.asarray(v, np.float32))[None])[0].double().numpy()
 
             rng = np.random.default_rng(0)
 

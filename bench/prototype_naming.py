@@ -1,4 +1,4 @@
-"""How well the vertex decoder's pose prototypes recognise a held-out identity's own pose delta:
+"""How well the pose prototypes (nn/pose_fields.py) recognise a held-out identity's own pose delta:
 for every held-out identity and single pose, the true delta mu(neutral -> pose) is matched against
 the `neutral_to_pose` prototypes (the mean training deltas). Prints, per pose group, how often the
 nearest prototype names the pose, and the mean softmax weight (the checkpoint's temperature) the
@@ -21,18 +21,18 @@ def main() -> None:
     ap.add_argument("--checkpoint", help="model.safetensors (default: the shipped model)")
     ap.add_argument("--corpus", help="corpus directory (default: the checkpoint preset's)")
     args = ap.parse_args()
-    from latent_model.bank import encode_states
+    from latent_model.encoding import encode_states
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.pairs import PAIR_KINDS
     from latent_model.corpus.poses import get_pose
     from latent_model.corpus.store import Corpus
     from latent_model.shipped import ShippedPaths
-    from latent_model.train.checkpoint import load_checkpoint
+    from latent_model.checkpoint import load_checkpoint
 
     model, preset, _ = load_checkpoint(args.checkpoint or ShippedPaths.at().checkpoint)
     model.eval()
     c = Corpus(args.corpus or default_corpus_dir(preset.corpus.preset))
-    vd = model.vertex_decoder
+    fields = model.pose_fields
     k = PAIR_KINDS.index("neutral_to_pose")
     poses = [p for p in c.poses if not get_pose(p).is_combo]
     hits, weights = defaultdict(list), defaultdict(list)
@@ -42,15 +42,15 @@ def main() -> None:
         delta = mu[1:] - mu[:1]  # (P, Z)
         kind = torch.full((len(poses),), k)
         with torch.no_grad():
-            cos, valid = vd.prototype_cosines(delta, kind)
-            w = vd.prototype_weights(delta, kind)
+            cos, valid = fields.cosines(delta, kind)
+            w = fields.weights(delta, kind)
         cos = cos.masked_fill(~valid, -2.0)
         for j, p in enumerate(poses):
             own = c.pose_index(p)
             group = get_pose(p).group
             hits[group].append(int(cos[j].argmax()) == own)
             weights[group].append(float(w[j, own]))
-    print(f"{args.checkpoint or 'shipped model'}: temperature {preset.model.vd_proto_temp:g}, "
+    print(f"{args.checkpoint or 'shipped model'}: temperature {preset.model.fields.proto_temp:g}, "
           f"{len(c.split_indices('test'))} held-out identities")
     for group in sorted(hits):
         print(f"  {group:8s} nearest prototype names the pose {100 * np.mean(hits[group]):5.1f}%  "

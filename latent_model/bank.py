@@ -6,20 +6,23 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from safetensors.numpy import load_file, save_file
 
+from latent_model.atomic import atomic_write
 from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
 from latent_model.corpus.store import Corpus
+from latent_model.encoding import encode_states
+from latent_model.errors import UserFacingError
 
 BANK_FORMAT = 2  # 2: unique latent rows + (source, target) indices per delta
 
 
-class BankError(RuntimeError):
+class BankError(UserFacingError, RuntimeError):
     pass
 
 
@@ -40,6 +43,7 @@ class LatentBank:
     # median standardised distance between the means of two independent SDF samplings of the
     # same geometry: how long a delta made of sampling noise alone is (0 = not measured)
     noise_floor: float = 0.0
+    _source_index: dict = field(default_factory=dict, repr=False, compare=False)  # (kind, pose) -> NearestNeighbors
 
     def standardise(self, mu: np.ndarray) -> np.ndarray:
         return (mu - self.mean) / self.scale
@@ -62,9 +66,14 @@ class LatentBank:
         """(identity, its delta) of the training identity whose source state is nearest to
         `mu_source` in standardised latent space (nearest_identity_delta)."""
         ids, d = self.delta(kind, pose)
-        src = self.standardise(self.sources[(kind, pose)])
-        dist = np.linalg.norm(src - self.standardise(mu_source)[None], axis=1)
-        k = int(np.argmin(dist))
+        index = self._source_index.get((kind, pose))
+        if index is None:
+            from sklearn.neighbors import NearestNeighbors
+
+            # exact distances (a tree, not the dot-product shortcut of brute force): the nearest is stable
+            index = NearestNeighbors(n_neighbors=1, algorithm="ball_tree").fit(self.standardise(self.sources[(kind, pose)]))
+            self._source_index[(kind, pose)] = index
+        k = int(index.kneighbors(self.standardise(np.asarray(mu_source))[None], return_distance=False)[0, 0])
         return ids[k], d[k]
 
     def identity_delta(self, kind: str, pose: str, identity: str) -> np.ndarray:
@@ -77,9 +86,6 @@ class LatentBank:
     def save(self, path: Path) -> None:
         """Unique latent rows (states sharing a geometry share a row) + per-delta index pairs:
         deltas are rebuilt exactly (the same float32 subtraction) on load."""
-        import os
-        import tempfile
-
         if self.pair_index is None:
             raise BankError("this bank has no pair index (built by an older version); rebuild it with `lrr bank`")
         uniq, inverse = np.unique(self.mu.astype(np.float32), axis=0, return_inverse=True)
@@ -94,17 +100,7 @@ class LatentBank:
             index.append({"kind": kind, "pose": pose, "ids": ids})
         meta = {"format": str(BANK_FORMAT), "keys": json.dumps(self.keys), "index": json.dumps(index),
                 "model_digest": self.model_digest, "noise_floor": repr(float(self.noise_floor))}
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-        os.close(fd)
-        try:
-            save_file(tensors, tmp, metadata=meta)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        atomic_write(path, lambda tmp: save_file(tensors, str(tmp), metadata=meta))
 
     @staticmethod
     def load(path: Path) -> "LatentBank":
@@ -143,23 +139,6 @@ def model_digest(model: torch.nn.Module) -> str:
     return h.hexdigest()[:16]
 
 
-@torch.no_grad()
-def encode_states(model, corpus: Corpus, states: list[int], device: torch.device | None = None,
-                  resample: int = 0, progress: bool = False) -> np.ndarray:
-    """Posterior means (n, Z) of corpus states (stored samples, or an independent re-sampling)."""
-    from tqdm import tqdm
-
-    device = device or torch.device("cpu")
-    out = []
-    chunk = 32
-    for i in tqdm(range(0, len(states), chunk), disable=not progress, desc="encoding", unit="batch"):
-        batch = [corpus.resample_sdf(s, resample) for s in states[i:i + chunk]]
-        p = torch.from_numpy(np.stack([b[0] for b in batch])).float().to(device)
-        v = torch.from_numpy(np.stack([b[1] for b in batch])).float().to(device)
-        out.append(model.encode_mu(p, v).cpu().numpy())
-    return np.concatenate(out) if out else np.zeros((0, model.cfg.latent), np.float32)
-
-
 def build_bank(model, corpus: Corpus, device: torch.device | None = None, progress: bool = True) -> LatentBank:
     """Encode every training state once and tabulate deltas for every pair kind and pose."""
     train = corpus.split_indices("train")
@@ -182,11 +161,7 @@ def build_bank(model, corpus: Corpus, device: torch.device | None = None, progre
     pairs = enumerate_pairs(train, corpus.poses, PAIR_KINDS)
     grouped: dict[tuple[str, str], list] = {}
     for p in pairs:
-        if p.kind == "source_to_combo":  # one delta per (combo, component): key the component in
-            key = (p.kind, f"{p.pose}<{p.source[0]}")
-        else:
-            key = (p.kind, p.pose)
-        grouped.setdefault(key, []).append(p)
+        grouped.setdefault((p.kind, p.bank_key), []).append(p)
     for key, ps in grouped.items():
         ids, si, ti = [], [], []
         for p in ps:

@@ -1,4 +1,8 @@
-"""`lrr` command line: corpus building and inspection, training (evaluation and prediction come later)."""
+"""`lrr` command line: build and inspect the corpus, train, build the latent bank, evaluate, predict.
+
+Every heavy import (torch, libigl, anny) happens inside the command that needs it, so `lrr --help`
+and argument errors answer at once.
+"""
 from __future__ import annotations
 
 import argparse
@@ -7,11 +11,13 @@ import sys
 import time
 from pathlib import Path
 
-from latent_model.config import PRESETS, corpus_preset, default_corpus_dir
+from latent_model.config import corpus_preset, default_corpus_dir
+from latent_model.errors import UserFacingError
+from latent_model.types import PRESETS
 
 
-class UserError(Exception):
-    """An error the user can fix; printed without a traceback."""
+class UserError(UserFacingError):
+    """A bad command line the user can fix; printed without a traceback."""
 
 
 def _corpus_path(args) -> Path:
@@ -141,23 +147,19 @@ def cmd_poses(args) -> None:
 
 
 def cmd_export(args) -> None:
-    import trimesh
+    from latent_model.meshio import EXPORT_FORMATS, export_mesh, from_identity
 
+    out = Path(args.output)
+    if out.suffix.lower() not in EXPORT_FORMATS:
+        raise UserError(f"{out}: unsupported format {out.suffix or '(none)'}; use one of {', '.join(EXPORT_FORMATS)}")
     c = _open_corpus(args)
     try:
         s = c.parse_state(args.state)
     except KeyError as e:
         raise UserError(str(e).strip("'\"")) from None
-    out = Path(args.output)
-    suffix = out.suffix.lower()
-    if suffix not in (".ply", ".obj", ".stl", ".glb", ".off"):
-        raise UserError(f"{out}: unsupported format {suffix or '(none)'}; use .ply, .obj, .stl, .glb or .off")
-    mesh = trimesh.Trimesh(c.vertices(s), c.faces, process=False)
-    tmp = out.with_name(f".{out.name}.tmp{suffix}")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    mesh.export(tmp)
-    os.replace(tmp, out)
-    print(f"wrote {c.state_name(s)} to {out} ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces)")
+    v = c.vertices(s)
+    export_mesh(from_identity(v, c.faces, c.state_name(s), c.body_faces), v, out)
+    print(f"wrote {c.state_name(s)} to {out} ({len(v)} vertices, {len(c.faces)} faces)")
 
 
 def cmd_sheet(args) -> None:
@@ -184,7 +186,8 @@ def cmd_sheet(args) -> None:
 def cmd_train(args) -> None:
     from latent_model.config import data_root, preset
     from latent_model.corpus.store import Corpus
-    from latent_model.train.loop import dist_info, init_distributed, select_device
+    from latent_model.runtime import select_device
+    from latent_model.train.loop import dist_info, init_distributed
     from latent_model.train.phases import train
 
     init_distributed()
@@ -209,8 +212,8 @@ def cmd_train(args) -> None:
 def cmd_bank(args) -> None:
     from latent_model.bank import build_bank
     from latent_model.corpus.store import Corpus
-    from latent_model.train.checkpoint import load_checkpoint
-    from latent_model.train.loop import select_device
+    from latent_model.checkpoint import load_checkpoint
+    from latent_model.runtime import select_device
 
     model, p, _ = load_checkpoint(Path(args.checkpoint))
     corpus = Corpus(Path(args.corpus) if args.corpus else default_corpus_dir(p.name))
@@ -258,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = with_corpus(cs.add_parser("export", help="write one state as a mesh file"))
     e.add_argument("state", help="ID/POSE/VARIANT or ID/neutral, e.g. id003/elbowBentLf/skinning_plus_blendshape")
-    e.add_argument("-o", "--output", required=True, help="output mesh (.ply .obj .stl .glb .off)")
+    e.add_argument("-o", "--output", required=True, help="output mesh (.obj .ply .stl .glb .off)")
     e.set_defaults(func=cmd_export)
 
     s = with_corpus(cs.add_parser("sheet", help="render a contact sheet (identities x poses) to PNG"))
@@ -298,19 +301,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from latent_model.corpus.poses import UnknownPoseError
-    from latent_model.corpus.store import CorpusError
-    from latent_model.bank import BankError
-    from latent_model.train.checkpoint import CheckpointError
-
     args = build_parser().parse_args(argv)
     from latent_model.runtime import keep_freed_memory
 
     keep_freed_memory()  # large temporaries reused instead of page-faulted in at every step
     try:
         args.func(args)
-    except (UserError, CorpusError, CheckpointError, BankError, UnknownPoseError, ValueError) as e:
-        print(f"lrr: error: {e}", file=sys.stderr)
+    except (UserFacingError, ValueError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+        print(f"lrr: error: {msg}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("lrr: interrupted (a corpus build resumes where it stopped)", file=sys.stderr)

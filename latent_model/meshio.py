@@ -15,16 +15,16 @@ Coincident vertices (seams of glTF/OBJ exports, STL triangle soup) are welded fo
 """
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-FORMATS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
-EXPORT_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")
+from latent_model.atomic import atomic_write_bytes
+
+FORMATS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")  # what load_mesh reads
+EXPORT_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")  # what export_mesh writes (the one list)
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 HUMAN_HEIGHT_M = (1.4, 2.1)  # what the detection expects
 SANE_HEIGHT_M = (0.5, 3.0)  # outside this after unit conversion the scale is absurd
@@ -317,23 +317,6 @@ def from_identity(vertices: np.ndarray, faces: np.ndarray, name: str, sdf_faces:
 
 
 # ----------------------------------------------------------------------------- writing
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write via a temp file in the same directory and an atomic rename (never half-written)."""
-    path = Path(path)
-    if path.parent and not path.parent.exists():
-        raise MeshError(f"{path}: the directory {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 _FACE_NORMAL_REF = re.compile(r"(\S+?)/(\S*?)/\S+")
 
 
@@ -383,5 +366,7 @@ def export_mesh(mesh: UserMesh, model_vertices: np.ndarray, path: str | Path) ->
         data = trimesh.exchange.export.export_mesh(tm, None, file_type=suffix[1:])
         if isinstance(data, str):
             data = data.encode()
+    if path.parent and not path.parent.exists():
+        raise MeshError(f"{path}: the directory {path.parent} does not exist")
     atomic_write_bytes(path, data)
     return path

@@ -11,7 +11,6 @@ vertex order (atomically: an existing output is replaced only by a complete file
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,19 +26,9 @@ class PredictError(ValueError):
     """A bad request to `lrr predict` (unknown pose, bad slider value, missing model)."""
 
 
-@dataclass
-class PredictResult:
-    mesh: UserMesh
-    vertices: np.ndarray  # (W, 3) model frame
-    label: str  # where the conditioning came from (mean / an identity id)
-    seconds_load: float
-    seconds_prepare: float
-    seconds_predict: float
-
-
 def check_pose(transfer, pose: str, kind: str) -> None:
     """Raise PredictError listing the valid names when the bank has no delta for `pose`."""
-    from latent_model.corpus.pairs import PAIR_KINDS
+    from latent_model.types import PAIR_KINDS
 
     if kind not in PAIR_KINDS:
         raise PredictError(f"unknown pair kind {kind!r}; valid: {', '.join(PAIR_KINDS)}")
@@ -70,18 +59,19 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose
                  seed: int = 0) -> tuple["TransferOutput", float, float]:
     """(the Transfer output: vertices (W, 3), conditioning label, noise gate...; prepare seconds,
     predict seconds) of a loaded mesh."""
-    from latent_model.transfer import parse_strategy
+    from latent_model.types import check_blend, check_magnitude, parse_strategy
 
     check_pose(transfer, pose, kind)
     if pose_b is not None:
         check_pose(transfer, pose_b, kind)
-    if not np.isfinite(magnitude) or not 0.0 <= magnitude <= 10.0:
-        raise PredictError(f"--magnitude must lie in [0, 10] (1 = as conditioned), got {magnitude}")
-    if not 0.0 <= blend <= 1.0:
-        raise PredictError(f"--blend must lie in [0, 1], got {blend}")
+    try:
+        check_magnitude(magnitude)
+        check_blend(blend)
+        parse_strategy(strategy)
+    except ValueError as e:
+        raise PredictError(f"{e} (see lrr predict --help)") from None
     if blend > 0 and pose_b is None:
         raise PredictError("--blend needs --pose-b (the pose to blend toward)")
-    parse_strategy(strategy)
     t0 = time.perf_counter()
     prepared = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
     t1 = time.perf_counter()
@@ -98,9 +88,9 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-b", help="second pose to blend toward")
     p.add_argument("--blend", type=float, default=0.0, help="0 = pose A, 1 = pose B (default 0)")
     p.add_argument("--strategy", default="mean",
-                   help="mean (mean pose delta, default: the better one on held-out bodies, README Results), "
+                   help="mean (mean pose delta, default: it transfers best on held-out bodies), "
                         "nearest (nearest identity delta) or identity:<id>")
-    p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r (0-2; default 1)")
+    p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r, in [0, 2] (default 1)")
     p.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose)")
     p.add_argument("--up", default="auto", choices=("auto", "y", "z"), help="up axis of the file (default: detected)")
     p.add_argument("--units", default="auto", choices=("auto", "m", "cm", "mm"), help="units of the file (default: detected)")

@@ -1,8 +1,9 @@
-"""Process-level tuning for interactive inference (glibc only; a no-op elsewhere)."""
+"""Process-level settings: the torch device, and tuning for interactive inference (glibc only; a no-op elsewhere)."""
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import sys
 
 # mallopt parameters (malloc.h)
@@ -53,3 +54,13 @@ def short_thread_spin() -> None:
 
     if "OMP_WAIT_POLICY" not in os.environ:
         os.environ.setdefault("GOMP_SPINCOUNT", str(SPIN_COUNT))
+
+
+def select_device():
+    """CUDA when present, else CPU (LRR_DEVICE overrides): a torch.device."""
+    import torch
+
+    forced = os.environ.get("LRR_DEVICE")
+    if forced:
+        return torch.device(forced)
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")

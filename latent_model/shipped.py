@@ -18,14 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from latent_model.corpus.identities import IdentitySpec
-from latent_model.corpus.pairs import FINAL, PAIR_KINDS
-from latent_model.corpus.poses import get_pose
-from latent_model.corpus.store import atomic_write_json
+from latent_model.corpus.pairs import pair_states
+from latent_model.errors import UserFacingError
 
 REPO_ASSETS = Path(__file__).resolve().parent.parent / "assets"
 
 
-class AssetsError(RuntimeError):
+class AssetsError(UserFacingError, RuntimeError):
     pass
 
 
@@ -54,11 +53,6 @@ class ShippedPaths:
         return self
 
 
-def write_identity_specs(path: Path, preset_name: str, poses: tuple[str, ...], specs: list[IdentitySpec]) -> None:
-    atomic_write_json(Path(path), {"preset": preset_name, "poses": list(poses),
-                                   "identities": [s.to_dict() for s in specs]})
-
-
 def load_identity_specs(path: Path | None = None) -> tuple[list[IdentitySpec], tuple[str, ...]]:
     """(specs, pose names) from identities.json."""
     path = Path(path) if path is not None else ShippedPaths.at().identities
@@ -69,34 +63,6 @@ def load_identity_specs(path: Path | None = None) -> tuple[list[IdentitySpec], t
         raise AssetsError(f"identity specs {path} are missing; restore assets/ from git") from None
     except (ValueError, KeyError, TypeError) as e:
         raise AssetsError(f"identity specs {path} are unreadable ({e}); restore assets/ from git") from e
-
-
-def pair_states(kind: str, pose: str, source_pose: str | None = None) -> tuple[tuple[str | None, str], tuple[str, str]]:
-    """((source pose or None, variant), (target pose, variant)) of a pair kind (see corpus/pairs.py).
-    `source_pose` names the component for `source_to_combo` (default: the combo's first one)."""
-    if kind not in PAIR_KINDS:
-        raise ValueError(f"unknown pair kind {kind!r}; valid: {', '.join(PAIR_KINDS)}")
-    p = get_pose(pose)
-    if kind == "neutral_to_pose":
-        return (None, "neutral"), (pose, FINAL)
-    if kind in ("skinning_to_skinning_plus_blendshape", "blendshape_to_skinning_plus_blendshape"):
-        if not p.has_skeletal:
-            raise ValueError(f"pose {pose!r} has no skeletal part, so it has no {kind} pair; use neutral_to_pose")
-        return (pose, kind.split("_to_")[0]), (pose, FINAL)
-    if not p.is_combo:
-        raise ValueError(f"pose {pose!r} is not a combined pose, so it has no source_to_combo pair")
-    comp = source_pose or p.components[0]
-    if comp not in p.components:
-        raise ValueError(f"{comp!r} is not a component of {pose!r}; components: {', '.join(p.components)}")
-    return (comp, FINAL), (pose, FINAL)
-
-
-def bank_pose_key(kind: str, pose: str, source_pose: str | None = None) -> str:
-    """The latent bank's pose key of a pair (source_to_combo keys name the component)."""
-    if kind == "source_to_combo":
-        (comp, _), _ = pair_states(kind, pose, source_pose)
-        return f"{pose}<{comp}"
-    return pose
 
 
 class GroundTruth:

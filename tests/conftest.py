@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from latent_model.config import corpus_preset
+from latent_model.corpus.config import corpus_preset
 
 
 @pytest.fixture(scope="session")

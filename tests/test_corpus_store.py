@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from latent_model.cli import main as lrr
-from latent_model.config import corpus_preset
+from latent_model.corpus.config import corpus_preset
 from latent_model.corpus.build import build
 from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
 from latent_model.corpus.poses import get_pose

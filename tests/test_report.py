@@ -10,7 +10,7 @@ from latent_model.bank import build_bank
 from latent_model.config import preset
 from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
 from latent_model.nn.model import LatentReRig
-from latent_model.train.checkpoint import save_checkpoint
+from latent_model.checkpoint import save_checkpoint
 
 STRATEGIES = ("mean", "nearest", "oracle", "mean_raw", "nearest_raw", "oracle_raw", "no_motion", "offset_nearest",
               "offset_mean")
@@ -104,7 +104,7 @@ def test_evaluate_refuses_a_corpus_the_checkpoint_was_not_trained_on(model_files
     config or generator version (e.g. after a rig fix) would score it on the wrong ground truth."""
     from latent_model.analysis.report import check_corpus_matches, evaluate
     from latent_model.corpus.store import CorpusError
-    from latent_model.train.checkpoint import load_checkpoint
+    from latent_model.checkpoint import load_checkpoint
 
     digest = tiny_corpus.manifest["config_digest"]
     check_corpus_matches({"extra": json.dumps({"corpus_digest": digest})}, model_files[0], tiny_corpus)

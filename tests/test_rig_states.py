@@ -44,7 +44,7 @@ def test_knee_bends_the_shank_backwards_for_every_build(generator):
     """The knee flexes in the sagittal plane whatever the legs' bind-pose shape. The bind-pose
     hinge rule (cross of thigh and shank) sent the foot of id000, id014 and id042 of the standard
     corpus ~30 cm sideways (lateral share of its displacement 0.61-0.66)."""
-    from latent_model.config import corpus_preset
+    from latent_model.corpus.config import corpus_preset
 
     cfg = corpus_preset("standard")
     specs = sample_identities(cfg.n_identities, cfg.n_test, cfg.n_stylised, cfg.seed, generator.rig.local_change_labels)

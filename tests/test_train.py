@@ -9,8 +9,8 @@ import torch
 
 from latent_model.config import preset
 from latent_model.nn.model import LatentReRig
-from latent_model.train.checkpoint import load_checkpoint
-from latent_model.train.loop import select_device
+from latent_model.checkpoint import load_checkpoint
+from latent_model.runtime import select_device
 from latent_model.train.phases import train_phase_a, train_phase_b
 
 
@@ -38,7 +38,7 @@ def test_phase_a_resumes_from_its_checkpoint(run_a, tiny_corpus):
 def test_phase_b_leaves_the_encoder_bit_identical(run_a, tiny_corpus):
     run, p, _ = run_a
     model, _, _ = load_checkpoint(run / "phase_a.safetensors")
-    before = {k: v.clone() for k, v in model.state_dict().items() if not k.startswith("vertex_decoder.")}
+    before = {k: v.clone() for k, v in model.state_dict().items() if not k.startswith(("vertex_decoder.", "pose_fields."))}
     vd_before = {k: v.clone() for k, v in model.vertex_decoder.state_dict().items()}
     train_phase_b(model, p, tiny_corpus, run, torch.device("cpu"), steps=6, progress=False)
     assert not model.encoder.training and all(not q.requires_grad for q in model.encoder.parameters())
@@ -47,7 +47,7 @@ def test_phase_b_leaves_the_encoder_bit_identical(run_a, tiny_corpus):
         assert torch.equal(v, after[k]), f"{k} changed in Phase B"
     assert any(not torch.equal(v, model.vertex_decoder.state_dict()[k]) for k, v in vd_before.items())
     # the pose prototypes were set from the training pairs: one unit row per pose with pairs
-    norms = model.vertex_decoder.prototypes.norm(dim=-1)
+    norms = model.pose_fields.prototypes.norm(dim=-1)
     assert (norms > 0).sum() >= 2 and torch.allclose(norms[norms > 0], torch.ones(int((norms > 0).sum())))
     lines = (run / "metrics_b.jsonl").read_text().splitlines()
     assert {"pos", "knn", "knn_delta", "static", "smooth", "nrm"} <= set(json.loads(lines[-1]))
@@ -72,24 +72,32 @@ def test_ddp_two_cpu_processes(tiny_corpus, tmp_path):
     assert (run / "loss_a.png").exists() and (run / "loss_b.png").exists()
 
 
-def test_closed_form_fields_reproduce_the_training_pairs(run_a, tiny_corpus):
-    """The ridge-fitted prototype fields, given the pose's mean training delta (the `mean`
-    strategy), move training meshes much closer to their targets than no motion; with the fields
-    left at zero they do not move them."""
-    from latent_model.corpus.pairs import PAIR_KINDS
-    from latent_model.train.closed_form import fit_prototype_fields, pose_prototypes
+def _fields_from_phase_a(run_a, tiny_corpus):
+    """(corpus, sampler, frozen-encoder mu per row, the model's PoseFields with prototypes set)."""
+    from latent_model.encoding import encode_rows
     from latent_model.train.data import PhaseBSampler
-    from latent_model.train.phases import encode_rows
+    from latent_model.train.fit_pose_fields import pose_prototypes
 
     run, p, _ = run_a
     model, _, _ = load_checkpoint(run / "phase_a.safetensors")
     c = tiny_corpus
     sampler = PhaseBSampler(c, p, 0)
-    pairs = [q for q in sampler.by_kind["neutral_to_pose"] if q.pose in ("elbowBentLf", "kneeBentLf")]
     rows = sorted({c.row(s) for q in sampler.by_kind["neutral_to_pose"] for s in sampler.states(q)})
     mu = encode_rows(model, c, rows, torch.device("cpu"), progress=False)
-    vd = model.vertex_decoder
-    vd.set_pose_prototypes(pose_prototypes(sampler, c, mu, p.model.n_poses))
+    fields = model.pose_fields
+    fields.set_prototypes(pose_prototypes(sampler, c, mu, p.model.n_poses))
+    return c, sampler, mu, fields
+
+
+def test_fitted_pose_fields_reproduce_the_training_pairs(run_a, tiny_corpus):
+    """The ridge-fitted pose fields, given the pose's mean training delta (the `mean` strategy),
+    move training meshes much closer to their targets than no motion; with the fields left at
+    zero they do not move them."""
+    from latent_model.corpus.pairs import PAIR_KINDS
+    from latent_model.train.fit_pose_fields import fit_pose_fields
+
+    c, sampler, mu, fields = _fields_from_phase_a(run_a, tiny_corpus)
+    pairs = [q for q in sampler.by_kind["neutral_to_pose"] if q.pose in ("elbowBentLf", "kneeBentLf")]
 
     def ratio() -> float:
         errs = []
@@ -97,44 +105,35 @@ def test_closed_form_fields_reproduce_the_training_pairs(run_a, tiny_corpus):
             s, t = sampler.states(q)
             v0, vt = torch.from_numpy(c.vertices(s))[None].float(), torch.from_numpy(c.vertices(t))[None].float()
             k, pose = PAIR_KINDS.index(q.kind), c.pose_index(q.pose)
-            d, r = vd.prototypes[k, pose][None], vd.proto_r[k, pose][None]
+            d, r = fields.prototypes[k, pose][None], fields.proto_r[k, pose][None]
             with torch.no_grad():
-                pred = v0 + vd.prototype_displacement(vd.field_features(v0), d, r, torch.tensor([k]))
+                pred = v0 + fields.displacement(v0, d, r, torch.tensor([k]))
             errs.append(float((pred - vt).norm(dim=-1).mean() / (v0 - vt).norm(dim=-1).mean()))
         return sum(errs) / len(errs)
 
     assert ratio() == pytest.approx(1.0)
-    info = fit_prototype_fields(vd, sampler, c, mu, seed=0, progress=False)
-    assert info["pairs"] > 0 and vd.proto_fields.abs().sum() > 0
+    info = fit_pose_fields(fields, sampler, c, mu, seed=0, progress=False)
+    assert info["pairs"] > 0 and fields.readouts.abs().sum() > 0
     assert ratio() < 0.6
 
 
-def test_unscaled_field_fit_ignores_each_pairs_latent_amount(run_a, tiny_corpus):
-    """vd_fit_scaled=False: every pair counts at amount 1, so doubling one training pair's latent
-    delta leaves the fitted fields unchanged; the scaled fit (the default) weighs that pair by its
-    amount and changes."""
-    import dataclasses
+def test_field_fit_counts_every_pair_once_whatever_its_latent_amount(run_a, tiny_corpus):
+    """Every pair along the prototype counts at amount 1 (the field is the pose's mean displacement):
+    doubling one training pair's latent delta leaves the fitted fields unchanged, while turning it
+    against the prototype drops the pair and changes them."""
+    from latent_model.train.fit_pose_fields import fit_pose_fields
 
-    from latent_model.train.closed_form import fit_prototype_fields, pose_prototypes
-    from latent_model.train.data import PhaseBSampler
-    from latent_model.train.phases import encode_rows
-
-    run, p, _ = run_a
-    model, _, _ = load_checkpoint(run / "phase_a.safetensors")
-    c = tiny_corpus
-    sampler = PhaseBSampler(c, p, 0)
-    rows = sorted({c.row(s) for q in sampler.by_kind["neutral_to_pose"] for s in sampler.states(q)})
-    mu = encode_rows(model, c, rows, torch.device("cpu"), progress=False)
-    vd = model.vertex_decoder
-    vd.set_pose_prototypes(pose_prototypes(sampler, c, mu, p.model.n_poses))
+    c, sampler, mu, fields = _fields_from_phase_a(run_a, tiny_corpus)
     s, t = sampler.states(sampler.by_kind["neutral_to_pose"][0])
-    doubled = mu.clone()
+
+    def fitted(rows_mu: torch.Tensor) -> tuple[torch.Tensor, int]:
+        info = fit_pose_fields(fields, sampler, c, rows_mu, seed=0, progress=False)
+        return fields.readouts.clone(), info["pairs"]
+
+    doubled, flipped = mu.clone(), mu.clone()
     doubled[c.row(t)] = mu[c.row(s)] + 2 * (mu[c.row(t)] - mu[c.row(s)])
-
-    def fields(scaled: bool, rows_mu: torch.Tensor) -> torch.Tensor:
-        vd.cfg = dataclasses.replace(vd.cfg, vd_fit_scaled=scaled)
-        fit_prototype_fields(vd, sampler, c, rows_mu, seed=0, progress=False)
-        return vd.proto_fields.clone()
-
-    assert torch.equal(fields(False, mu), fields(False, doubled))
-    assert not torch.allclose(fields(True, mu), fields(True, doubled))
+    flipped[c.row(t)] = mu[c.row(s)] - (mu[c.row(t)] - mu[c.row(s)])
+    base, n = fitted(mu)
+    assert torch.equal(base, fitted(doubled)[0])
+    away, n_away = fitted(flipped)
+    assert n_away == n - 1 and not torch.allclose(base, away)

@@ -3,10 +3,32 @@ import numpy as np
 import pytest
 import torch
 
-from latent_model.bank import BankError, LatentBank, build_bank, encode_states
+from latent_model.bank import BankError, LatentBank, build_bank
+from latent_model.encoding import encode_states
 from latent_model.config import preset
 from latent_model.nn.model import LatentReRig
 from latent_model.transfer import Transfer, parse_strategy
+
+
+def set_fields_from_bank(model, bank, corpus) -> None:
+    """Pose prototypes from the bank's mean deltas and random read-outs: pose fields that move the
+    mesh differently for each pose (what fitting does with real data)."""
+    from latent_model.corpus.pairs import split_bank_key
+    from latent_model.types import PAIR_KINDS
+
+    fields = model.pose_fields
+    protos = torch.zeros_like(fields.prototypes)
+    for (kind, key), (_, d) in bank.deltas.items():
+        protos[PAIR_KINDS.index(kind), corpus.pose_index(split_bank_key(kind, key)[0])] = torch.from_numpy(d.mean(0))
+    fields.set_prototypes(protos)
+    with torch.no_grad():
+        fields.readouts.copy_(torch.randn(fields.readouts.shape, generator=torch.Generator().manual_seed(0)) * 0.01)
+
+
+def held_out_neutral(t: Transfer, c, **kw):
+    """(state, prepared mesh) of the first held-out identity's neutral."""
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    return s, t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -18,6 +40,7 @@ def setup(tiny_corpus, tmp_path_factory):
         for prm in model.vertex_decoder.parameters():
             prm.add_(torch.randn_like(prm) * 0.05)
     bank = build_bank(model, tiny_corpus, progress=False)
+    set_fields_from_bank(model, bank, tiny_corpus)
     path = tmp_path_factory.mktemp("bank") / "bank.safetensors"
     bank.save(path)
     return p, model, bank, path
@@ -69,8 +92,7 @@ def test_transfer_strategies_sliders_and_errors(setup, tiny_corpus):
     c = tiny_corpus
     t = Transfer(model, bank, c.config.sdf.k)
     test_id = c.split_indices("test")[0]
-    s = c.state(test_id, None, "neutral")
-    mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
+    s, mesh = held_out_neutral(t, c)
     outs = {}
     for strategy in ("mean", "nearest", f"identity:{bank.delta('neutral_to_pose', 'kneeBentLf')[0][0]}"):
         outs[strategy] = t.predict(mesh, "kneeBentLf", strategy)
@@ -112,25 +134,62 @@ def test_transfer_on_another_topology(setup, tiny_corpus):
 
 
 def test_cached_mesh_features_change_nothing(setup, tiny_corpus):
-    """The per-mesh feature cache (for slider speed) gives exactly the uncached decoder output."""
-    from latent_model.train.phases import normalised_delta
-    from latent_model.corpus.pairs import PAIR_KINDS
+    """The per-mesh caches (for slider speed) give exactly the uncached output, for the pose fields
+    alone (neutral_to_pose) and for the network (a corrective pair)."""
+    from latent_model.nn.delta import normalised_delta
+    from latent_model.types import PAIR_KINDS
 
     p, model, bank, _ = setup
     c = tiny_corpus
     t = Transfer(model, bank, p.corpus.sdf.k)
-    s = c.state(c.split_indices("test")[0], None, "neutral")
-    mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=encode_states(model, c, [s])[0])
-    first = t.predict_detail(mesh, "elbowBentLf", "mean").raw
-    assert mesh.features is not None
-    again = t.predict_detail(mesh, "elbowBentLf", "mean").raw
-    d, r = normalised_delta(torch.from_numpy(bank.mean_delta("neutral_to_pose", "elbowBentLf"))[None])
-    with torch.no_grad():
-        direct = model.vertex_decoder(torch.from_numpy(mesh.vertices)[None], torch.from_numpy(mesh.normals)[None],
-                                      torch.from_numpy(mesh.mu)[None], d, r, torch.tensor([PAIR_KINDS.index("neutral_to_pose")]),
-                                      torch.from_numpy(mesh.knn)[None])["vertices"][0].numpy()
-    assert np.array_equal(first, again)
-    assert np.allclose(first, direct, atol=1e-6)
+    fields, vd = model.pose_fields, model.vertex_decoder
+    for kind, variant in (("neutral_to_pose", None), ("skinning_to_skinning_plus_blendshape", "skinning")):
+        i = c.split_indices("test")[0]
+        s = c.state(i, None, "neutral") if variant is None else c.state(i, "elbowBentLf", variant)
+        mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=encode_states(model, c, [s])[0])
+        first = t.predict_detail(mesh, "elbowBentLf", "mean", kind=kind)
+        again = t.predict_detail(mesh, "elbowBentLf", "mean", kind=kind)
+        assert first.predictor == ("pose_fields" if kind == "neutral_to_pose" else "network")
+        v = torch.from_numpy(mesh.vertices)[None]
+        d, r = normalised_delta(torch.from_numpy(bank.mean_delta(kind, "elbowBentLf"))[None])
+        k = torch.tensor([PAIR_KINDS.index(kind)])
+        with torch.no_grad():
+            disp = fields.displacement(v, d, r, k)
+            if kind == "neutral_to_pose":
+                direct = (v + disp)[0].numpy()
+            else:
+                direct = vd(v, torch.from_numpy(mesh.normals)[None], torch.from_numpy(mesh.mu)[None], d, r, k,
+                            torch.from_numpy(mesh.knn)[None], fields.weights(d, k), disp)["vertices"][0].numpy()
+        assert np.array_equal(first.raw, again.raw)
+        assert np.allclose(first.raw, direct, atol=1e-6)
+        assert not np.allclose(first.raw, mesh.vertices, atol=1e-4)  # it does move the mesh
+
+
+def test_transfer_derives_only_what_the_pair_kinds_predictor_reads(setup, tiny_corpus):
+    """neutral_to_pose with the mean delta is the pose fields alone: it computes no latent, normals
+    or neighbourhoods and ignores them (noise in their place changes nothing); the network kinds
+    read all three, and their output follows the mesh's latent."""
+    p, model, bank, _ = setup
+    c = tiny_corpus
+    t = Transfer(model, bank, p.corpus.sdf.k)
+    i = c.split_indices("test")[0]
+    s, lazy = held_out_neutral(t, c)
+    out = t.predict(lazy, "kneeBentLf", "mean")
+    assert lazy.derived() == set()
+    rng = np.random.default_rng(0)
+    noisy = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=rng.normal(size=p.model.latent))
+    noisy.__dict__["normals"] = np.zeros_like(noisy.vertices)
+    noisy.__dict__["knn"] = np.zeros((len(noisy.vertices), p.model.decoder.knn), np.int64)
+    assert np.array_equal(t.predict(noisy, "kneeBentLf", "mean"), out)
+    t.predict(lazy, "kneeBentLf", "nearest")  # the nearest identity is found from the latent
+    assert lazy.derived() == {"mu"}
+    posed = c.state(i, "elbowBentLf", "skinning")
+    m1 = t.prepare(c.vertices(posed), c.faces, sdf_faces=c.body_faces)
+    kind = "skinning_to_skinning_plus_blendshape"
+    a = t.predict_detail(m1, "elbowBentLf", "mean", kind=kind)
+    assert m1.derived() == {"mu", "normals", "knn"} and a.predictor == "network"
+    m2 = t.prepare(c.vertices(posed), c.faces, sdf_faces=c.body_faces, mu=m1.mu + rng.normal(size=p.model.latent))
+    assert not np.allclose(t.predict_detail(m2, "elbowBentLf", "mean", kind=kind).raw, a.raw)
 
 
 def test_noise_gate(setup, tiny_corpus):
@@ -152,14 +211,17 @@ def test_noise_gate(setup, tiny_corpus):
     assert t.noise_gate(unit * bank.noise_floor * GATE_HI * 1.01)[0] == 1.0
     g, signal = t.noise_gate(unit * bank.noise_floor * (GATE_LO + GATE_HI) / 2)
     assert g == pytest.approx(0.5) and signal == pytest.approx((GATE_LO + GATE_HI) / 2)
-    s = c.state(c.split_indices("test")[0], None, "neutral")
-    mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
-    for magnitude in (0.0, 1.0):
-        o = t.predict_detail(mesh, "kneeBentLf", "nearest", magnitude=magnitude)
-        assert np.allclose(o.vertices, mesh.vertices + o.gate * (o.raw - mesh.vertices), atol=1e-6)
-        if magnitude == 0:
-            assert o.gate == 0.0 and np.array_equal(o.vertices, mesh.vertices)
-            assert not np.allclose(o.raw, mesh.vertices)  # the decoder alone would have moved it
+    s, mesh = held_out_neutral(t, c)
+    for kind in ("neutral_to_pose", "skinning_to_skinning_plus_blendshape"):
+        for magnitude in (0.0, 1.0):
+            o = t.predict_detail(mesh, "kneeBentLf", "nearest", magnitude=magnitude, kind=kind)
+            assert np.allclose(o.vertices, mesh.vertices + o.gate * (o.raw - mesh.vertices), atol=1e-6)
+            if magnitude == 0:
+                assert o.gate == 0.0 and np.array_equal(o.vertices, mesh.vertices)
+                if kind != "neutral_to_pose":  # the fields are linear in r; the network alone would have moved it
+                    assert not np.allclose(o.raw, mesh.vertices)
+    with pytest.raises(ValueError, match=r"magnitude must lie in \[0, 2\]"):
+        t.predict(mesh, "kneeBentLf", magnitude=2.5)
     # a bank without a measured floor (older files) has no gate
     ungated = Transfer(model, dataclasses.replace(bank, noise_floor=0.0), c.config.sdf.k)
     o = ungated.predict_detail(mesh, "kneeBentLf", "nearest")

@@ -10,16 +10,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from latent_model.atomic import atomic_save_figure  # noqa: E402
+
 GROUP_COLOURS = {"body": "tab:blue", "finger": "tab:orange", "face": "tab:green", "mixed": "tab:purple"}
 
 
 def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    return atomic_save_figure(fig, path, dpi=90, bbox_inches="tight")
 
 
 def heatmap(ax, matrix: np.ndarray, labels: list[str], title: str, cmap: str = "viridis",

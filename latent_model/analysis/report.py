@@ -86,7 +86,6 @@ def check_corpus_matches(meta: dict, checkpoint: Path, corpus) -> None:
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
              progress: bool = True) -> Path:
-    import torch
 
     from latent_model.analysis import figures
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
@@ -95,8 +94,9 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     from latent_model.bank import LatentBank
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.poses import get_pose
-    from latent_model.corpus.store import Corpus, atomic_write_json, atomic_write_text
-    from latent_model.train.checkpoint import load_checkpoint
+    from latent_model.atomic import atomic_write_json, atomic_write_text
+    from latent_model.corpus.store import Corpus
+    from latent_model.checkpoint import load_checkpoint
     from latent_model.transfer import Transfer
 
     def say(msg: str) -> None:

@@ -11,24 +11,17 @@ from __future__ import annotations
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
+from sklearn.decomposition import PCA
 
 from latent_model.analysis.latent_space import LatentSource, SampleCache, single_poses
 from latent_model.corpus.pairs import FINAL
 from latent_model.corpus.store import Corpus
+from latent_model.encoding import encode_sample_sets
 
 
 def model_source(model, bank, samples: SampleCache, device: torch.device | None = None) -> LatentSource:
-    device = device or torch.device("cpu")
-
-    @torch.no_grad()
     def encode(states: list[int], resample: int) -> np.ndarray:
-        out = []
-        for i in range(0, len(states), 32):
-            batch = [samples.get(s, resample) for s in states[i:i + 32]]
-            p = torch.from_numpy(np.stack([b[0] for b in batch])).float().to(device)
-            v = torch.from_numpy(np.stack([b[1] for b in batch])).float().to(device)
-            out.append(model.encode_mu(p, v).cpu().numpy())
-        return np.concatenate(out)
+        return encode_sample_sets(model, states, lambda s: samples.get(s, resample), device)
 
     return LatentSource("model", encode, bank.mean, bank.scale)
 
@@ -67,13 +60,11 @@ def pca_baseline_source(corpus: Corpus, samples: SampleCache, dims: int, fit_ids
         return np.stack([grid.values(*samples.get(s, resample)) for s in states]).astype(np.float32)
 
     X = raw(fit_states, 0)
-    centre = X.mean(0)
     dims = min(dims, len(X) - 1)
-    _, _, vt = np.linalg.svd(X - centre, full_matrices=False)
-    basis = vt[:dims]  # (dims, G)
+    pca = PCA(n_components=dims, svd_solver="full").fit(X)
 
     def encode(states: list[int], resample: int) -> np.ndarray:
-        return (raw(states, resample) - centre) @ basis.T
+        return pca.transform(raw(states, resample))
 
-    codes = (X - centre) @ basis.T
+    codes = pca.transform(X)
     return LatentSource(f"pca{dims}", encode, codes.mean(0), codes.std(0) + 1e-6)

@@ -29,11 +29,7 @@ EXAMPLE_POSES = ("elbowBentLf", "elbowSuperBentLf", "cornerUpLf", "browDwLf+brow
 
 def pose_key(p: Pair) -> str:
     """Metrics key of a pair's pose (source_to_combo names its component: combo@component)."""
-    return f"{p.pose}@{p.source[0]}" if p.kind == "source_to_combo" else p.pose
-
-
-def bank_key(p: Pair) -> str:
-    return f"{p.pose}<{p.source[0]}" if p.kind == "source_to_combo" else p.pose
+    return f"{p.pose}@{p.component}" if p.component else p.pose
 
 
 def nearest_training_identity(corpus: Corpus, train: list[int]) -> Callable[[int], int]:
@@ -57,7 +53,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity)."""
     from tqdm import tqdm
 
-    from latent_model.bank import encode_states
+    from latent_model.encoding import encode_states
 
     train = corpus.split_indices("train")
     nearest_of = nearest_training_identity(corpus, train)
@@ -70,7 +66,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     example_identity = ids[0] if example_identity is None else example_identity
     pairs_by_key: dict[tuple[str, str], list[Pair]] = {}
     for p in enumerate_pairs(ids, tuple(corpus.poses), kinds):
-        pairs_by_key.setdefault((p.kind, bank_key(p)), []).append(p)
+        pairs_by_key.setdefault((p.kind, p.bank_key), []).append(p)
 
     def latent(s: int) -> np.ndarray:
         return encode_states(transfer.model, corpus, [s], transfer.device)[0]

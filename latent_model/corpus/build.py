@@ -19,10 +19,11 @@ from typing import Callable
 
 import numpy as np
 
-from latent_model.config import CorpusConfig
+from latent_model.atomic import atomic_write_json
+from latent_model.corpus.config import CorpusConfig
 from latent_model.corpus.identities import IdentitySpec, sample_identities, variety_stats
 from latent_model.corpus.store import (FORMAT_VERSION, KIND, Corpus, CorpusError, Layout, atomic_save_npy,
-                                       atomic_write_json, create_arrays, sdf_seed, write_block)
+                                       create_arrays, sdf_seed, write_block)
 
 _WORKER: dict = {}
 

@@ -1,4 +1,4 @@
-"""Source -> target pairs of the paper's four kinds, with exact definitions.
+"""Source -> target pairs of the paper's four kinds: the one definition (`pair_states`).
 
 For an identity i, a pose config p and its variants (see states.py):
 - ``neutral_to_pose``: (i, neutral) -> (i, p, skinning_plus_blendshape), every pose p (single
@@ -11,20 +11,57 @@ For an identity i, a pose config p and its variants (see states.py):
   every combined pose c and each of its components a: adding the other components.
 Face-only poses have no skinning/blendshape pairs: their source would equal the neutral or
 the target (identical geometry), so those pairs would duplicate neutral_to_pose or be empty.
+
+A source_to_combo pair is named by its combo *and* component: the latent bank keys it
+``combo<component>`` (`bank_key`, `split_bank_key`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from latent_model.corpus.poses import get_pose
+from latent_model.types import FINAL, PAIR_KINDS, check_pair_kind
 
-PAIR_KINDS = (
-    "neutral_to_pose",
-    "skinning_to_skinning_plus_blendshape",
-    "blendshape_to_skinning_plus_blendshape",
-    "source_to_combo",
-)
-FINAL = "skinning_plus_blendshape"
+__all__ = ["FINAL", "PAIR_KINDS", "Pair", "StateRef", "pair_states", "bank_key", "split_bank_key",
+           "pairs_for_identity", "enumerate_pairs"]
+
+StateRef = tuple  # (pose name or None for the neutral, variant)
+
+
+def pair_states(kind: str, pose: str, source_pose: str | None = None) -> tuple[StateRef, StateRef]:
+    """((source pose or None, variant), (target pose, variant)) of a pair kind.
+    `source_pose` names the component for `source_to_combo` (default: the combo's first one).
+    A pose the kind does not apply to raises ValueError saying which kind to use."""
+    check_pair_kind(kind)
+    p = get_pose(pose)
+    if kind == "neutral_to_pose":
+        return (None, "neutral"), (pose, FINAL)
+    if kind in ("skinning_to_skinning_plus_blendshape", "blendshape_to_skinning_plus_blendshape"):
+        if not p.has_skeletal:
+            raise ValueError(f"pose {pose!r} has no skeletal part, so it has no {kind} pair; use neutral_to_pose")
+        return (pose, kind.split("_to_")[0]), (pose, FINAL)
+    if not p.is_combo:
+        raise ValueError(f"pose {pose!r} is not a combined pose, so it has no source_to_combo pair")
+    comp = source_pose or p.components[0]
+    if comp not in p.components:
+        raise ValueError(f"{comp!r} is not a component of {pose!r}; components: {', '.join(p.components)}")
+    return (comp, FINAL), (pose, FINAL)
+
+
+def bank_key(kind: str, pose: str, component: str | None = None) -> str:
+    """The latent bank's key of a pair: the pose, or ``combo<component>`` for source_to_combo."""
+    if kind == "source_to_combo":
+        (comp, _), _ = pair_states(kind, pose, component)
+        return f"{pose}<{comp}"
+    return pose
+
+
+def split_bank_key(kind: str, key: str) -> tuple[str, str | None]:
+    """A bank key -> (pose, source component or None); the inverse of `bank_key`."""
+    if kind == "source_to_combo" and "<" in key:
+        pose, comp = key.split("<", 1)
+        return pose, comp
+    return key, None
 
 
 @dataclass(frozen=True)
@@ -32,29 +69,40 @@ class Pair:
     kind: str
     identity: int
     pose: str  # the target pose config
-    source: tuple[str | None, str]  # (pose or None for neutral, variant)
-    target: tuple[str, str]
+    source: StateRef  # (pose or None for neutral, variant)
+    target: StateRef
+
+    @property
+    def component(self) -> str | None:
+        """The source component of a source_to_combo pair (None for the other kinds)."""
+        return self.source[0] if self.kind == "source_to_combo" else None
+
+    @property
+    def bank_key(self) -> str:
+        return bank_key(self.kind, self.pose, self.component)
+
+
+def _applies(kind: str, pose: str) -> bool:
+    p = get_pose(pose)
+    if kind in ("skinning_to_skinning_plus_blendshape", "blendshape_to_skinning_plus_blendshape"):
+        return p.has_skeletal
+    return p.is_combo if kind == "source_to_combo" else True
 
 
 def pairs_for_identity(identity: int, poses: tuple[str, ...], kinds: tuple[str, ...] = PAIR_KINDS) -> list[Pair]:
-    unknown = [k for k in kinds if k not in PAIR_KINDS]
-    if unknown:
-        raise ValueError(f"unknown pair kind(s) {unknown}; valid: {', '.join(PAIR_KINDS)}")
+    """Every pair of the given kinds of one identity, pose by pose (kinds in PAIR_KINDS order);
+    a combo's source_to_combo pairs only for components among `poses`."""
+    for k in kinds:
+        check_pair_kind(k)
     out: list[Pair] = []
     available = set(poses)
     for name in poses:
-        p = get_pose(name)
-        if "neutral_to_pose" in kinds:
-            out.append(Pair("neutral_to_pose", identity, name, (None, "neutral"), (name, FINAL)))
-        if p.has_skeletal:
-            if "skinning_to_skinning_plus_blendshape" in kinds:
-                out.append(Pair("skinning_to_skinning_plus_blendshape", identity, name, (name, "skinning"), (name, FINAL)))
-            if "blendshape_to_skinning_plus_blendshape" in kinds:
-                out.append(Pair("blendshape_to_skinning_plus_blendshape", identity, name, (name, "blendshape"), (name, FINAL)))
-        if p.is_combo and "source_to_combo" in kinds:
-            for comp in dict.fromkeys(p.components):
-                if comp in available:
-                    out.append(Pair("source_to_combo", identity, name, (comp, FINAL), (name, FINAL)))
+        for kind in (k for k in PAIR_KINDS if k in kinds and _applies(k, name)):
+            comps = [c for c in dict.fromkeys(get_pose(name).components) if c in available] \
+                if kind == "source_to_combo" else [None]
+            for comp in comps:
+                src, tgt = pair_states(kind, name, comp)
+                out.append(Pair(kind, identity, name, src, tgt))
     return out
 
 

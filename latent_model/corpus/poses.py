@@ -19,7 +19,9 @@ Axis rules (resolved per identity from its own rest skeleton, see `rig.py`):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+
+from latent_model.errors import UserFacingError
 
 SIDES = ("Lf", "Rt")
 
@@ -203,7 +205,7 @@ PAPER_POSES: tuple[str, ...] = (
 )
 
 
-class UnknownPoseError(KeyError):
+class UnknownPoseError(UserFacingError, KeyError):
     def __str__(self) -> str:  # KeyError quotes its message; we want it readable
         return str(self.args[0])
 

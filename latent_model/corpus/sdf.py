@@ -22,10 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-import igl
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 
 __all__ = [
     "SdfSampling",
@@ -156,6 +153,9 @@ def body_component_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     # (edge 2-0 is implied) and cheaper than building all three.
     rows = np.concatenate([f[:, 0], f[:, 1]])
     cols = np.concatenate([f[:, 1], f[:, 2]])
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
     adj = scipy.sparse.coo_matrix((np.ones(rows.shape[0], dtype=np.int8), (rows, cols)), shape=(n, n))
     _, labels = scipy.sparse.csgraph.connected_components(adj, directed=False)
     # Count only vertices referenced by faces so unreferenced (isolated)
@@ -209,12 +209,16 @@ def _squared_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarra
     ``igl.point_mesh_squared_distance`` builds one AABB tree per call and queries
     all points against it.
     """
+    import igl  # libigl loads in ~0.4 s: only where distances are computed
+
     sq, _, _ = igl.point_mesh_squared_distance(points, vertices, faces)
     return sq
 
 
 def _winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(N,) float64 fast (Barnes-Hut) generalised winding number; inputs already validated/converted."""
+    import igl
+
     return igl.fast_winding_number(vertices, faces, points)
 
 

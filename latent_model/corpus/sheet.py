@@ -7,6 +7,7 @@ import numpy as np
 
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
+from latent_model.atomic import atomic_save_figure
 from latent_model.render import draw_mesh
 
 DEFAULT_SHEET_POSES = ("neutral", "elbowSuperBentLf", "kneeBentLf", "shoulderRaiseLf", "fistLf",
@@ -62,10 +63,4 @@ def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None
                 ax.text(0.0, 1.0, label, transform=ax.transAxes, fontsize=7, va="top")
     fig.suptitle("Corpus contact sheet (colour: displacement from neutral, 0-20 mm)", fontsize=10)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp.png")
-    fig.savefig(tmp, dpi=dpi)
-    plt.close(fig)
-    tmp.replace(out)
-    return out
+    return atomic_save_figure(fig, out, dpi=dpi)

@@ -21,9 +21,8 @@ from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.poses import PoseConfig, get_pose
 from latent_model.corpus.rig import RestShape, Rig
 from latent_model.corpus.sdf import vertex_normals
+from latent_model.types import VARIANTS
 
-VARIANTS = ("neutral", "skinning", "blendshape", "skinning_plus_blendshape")
-POSED_VARIANTS = VARIANTS[1:]
 
 
 @dataclass

@@ -20,58 +20,31 @@ atomically (temp file + rename); a build lives in ``DIR.partial`` until complete
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from latent_model.config import CorpusConfig
+from latent_model.atomic import atomic_write
+from latent_model.corpus.config import CorpusConfig
+from latent_model.errors import UserFacingError
+from latent_model.types import PRESETS, VARIANTS
 from latent_model.corpus.identities import IdentitySpec
-from latent_model.corpus.poses import POSES, get_pose
-from latent_model.corpus.states import VARIANTS
+from latent_model.corpus.poses import get_pose
+
 
 FORMAT_VERSION = 1
 KIND = "lrr-corpus"
 ARRAYS = ("vertices", "normals", "sdf_points", "sdf_values")
 
 
-class CorpusError(RuntimeError):
+class CorpusError(UserFacingError, RuntimeError):
     """A corpus that is missing, incomplete, of another format or corrupt (message says the fix)."""
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write `text` to `path` via a temp file in the same directory and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_json(path: Path, obj) -> None:
-    atomic_write_text(path, json.dumps(obj, indent=1))
-
-
 def atomic_save_npy(path: Path, array: np.ndarray) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, array)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: np.save(tmp, array))
 
 
 @dataclass(frozen=True)
@@ -164,8 +137,9 @@ class Corpus:
             if partial.exists():
                 raise CorpusError(f"the corpus build at {partial} is unfinished; resume it by running the "
                                   f"same `lrr corpus build` command again")
+            preset = self.path.name if self.path.name in PRESETS else "|".join(PRESETS)
             raise CorpusError(f"no corpus at {self.path} (missing manifest.json); build one with "
-                              f"`lrr corpus build --preset standard --out {self.path}`")
+                              f"`lrr corpus build --preset {preset} --out {self.path}`")
         try:
             self.manifest = json.loads(m.read_text())
         except (OSError, json.JSONDecodeError) as e:

@@ -1,4 +1,4 @@
-"""The whole LatentReRig model: encoder, SDF decoder, heads (Phase A) and vertex decoder (Phase B)."""
+"""The whole LatentReRig model: encoder, SDF decoder, heads (Phase A), vertex decoder and pose fields (Phase B)."""
 from __future__ import annotations
 
 import torch
@@ -7,6 +7,7 @@ from torch import nn
 from latent_model.config import ModelConfig
 from latent_model.nn.encoder import SdfSetEncoder
 from latent_model.nn.heads import CharacterClassifier, PoseClassifier
+from latent_model.nn.pose_fields import PoseFields
 from latent_model.nn.sdf_decoder import SdfDecoder
 from latent_model.nn.vertex_decoder import VertexDecoder
 
@@ -22,6 +23,7 @@ class LatentReRig(nn.Module):
         self.char_head = CharacterClassifier(cfg)
         self.pose_head = PoseClassifier(cfg)
         self.vertex_decoder = VertexDecoder(cfg)
+        self.pose_fields = PoseFields(cfg)
 
     def phase_a_parameters(self):
         for part in PHASE_A_PARTS:

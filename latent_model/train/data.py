@@ -7,12 +7,12 @@ import numpy as np
 import torch
 
 from latent_model.config import Preset
-from latent_model.corpus.pairs import PAIR_KINDS, Pair, enumerate_pairs
+from latent_model.corpus.pairs import FINAL, PAIR_KINDS, Pair, enumerate_pairs
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
 from latent_model.nn.vertex_decoder import knn_graph
 
-FINAL = "skinning_plus_blendshape"
+
 
 
 @dataclass
@@ -120,7 +120,7 @@ class PhaseBSampler:
     def __init__(self, corpus: Corpus, preset: Preset, seed: int, identities: list[int] | None = None) -> None:
         self.c = corpus
         self.t = preset.train
-        self.k = preset.model.vd_knn
+        self.k = preset.model.decoder.knn
         self.rng = np.random.default_rng(seed)
         ids = identities if identities is not None else corpus.split_indices("train")
         kinds = tuple(k for k in self.t.b_kinds if k in PAIR_KINDS)

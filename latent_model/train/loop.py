@@ -13,17 +13,24 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from latent_model.atomic import atomic_save_figure, atomic_write
 from latent_model.config import Preset
-from latent_model.train.checkpoint import (CheckpointError, load_checkpoint, load_resume, save_checkpoint,
-                                           save_resume)
+from latent_model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 
 
-def select_device() -> torch.device:
-    """CUDA when present, else CPU (LRR_DEVICE overrides)."""
-    forced = os.environ.get("LRR_DEVICE")
-    if forced:
-        return torch.device(forced)
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+def save_resume(path: Path, state: dict) -> None:
+    """Optimizer, scheduler, step and sampler state beside the checkpoint (a weights-only torch file)."""
+    atomic_write(path, lambda tmp: torch.save(state, tmp))
+
+
+def load_resume(path: Path) -> dict | None:
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        return torch.load(path, weights_only=True, map_location="cpu")
+    except Exception as e:  # noqa: BLE001 - any unreadable resume file means "start over"
+        raise CheckpointError(f"resume state {path} is unreadable ({e}); delete it to start the phase over") from e
 
 
 def dist_info() -> tuple[int, int]:
@@ -173,7 +180,4 @@ def plot_loss_curve(log_path: Path, out: Path, title: str) -> None:
     ax.set_title(title)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    tmp = Path(out).with_name(Path(out).name + ".tmp.png")
-    fig.savefig(tmp, dpi=90)
-    plt.close(fig)
-    tmp.replace(out)
+    atomic_save_figure(fig, out, dpi=90)

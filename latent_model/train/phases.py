@@ -13,18 +13,12 @@ from latent_model.corpus.store import Corpus
 from latent_model.nn import losses
 from latent_model.nn.encoder import reparameterise
 from latent_model.nn.model import LatentReRig
-from latent_model.train.checkpoint import load_phase_a, save_checkpoint
-from latent_model.train.closed_form import fit_prototype_fields, pose_prototypes
+from latent_model.checkpoint import load_phase_a, save_checkpoint
+from latent_model.encoding import encode_rows
+from latent_model.nn.delta import normalised_delta
 from latent_model.train.data import PhaseABatch, PhaseASampler, PhaseBBatch, PhaseBSampler
+from latent_model.train.fit_pose_fields import fit_pose_fields, pose_prototypes
 from latent_model.train.loop import PhaseSpec, dist_info, run_phase
-
-EPS_NORM = 1e-8
-
-
-def normalised_delta(delta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(N, Z) raw delta -> (direction (N, Z), magnitude r (N,)) as in the paper."""
-    r = delta.norm(dim=-1)
-    return delta / (r[:, None] + EPS_NORM), r
 
 
 class PhaseANet(nn.Module):
@@ -59,8 +53,7 @@ class PhaseANet(nn.Module):
             tot = torch.stack([delta[c] for c, _ in b.combo_rows])
             parts = torch.stack([delta[comps].sum(0) for _, comps in b.combo_rows])
             t["combo"] = losses.composition(tot, parts)
-        names = {"variant": "variant", "combo": "combo", "contrast": "contrast"}
-        total = sum(getattr(w, names.get(k, k)) * v for k, v in t.items() if getattr(w, names.get(k, k)))
+        total = sum(getattr(w, k) * v for k, v in t.items() if getattr(w, k))
         return total, {k: v.detach() for k, v in t.items()}
 
 
@@ -70,6 +63,7 @@ class PhaseBNet(nn.Module):
     def __init__(self, model: LatentReRig, preset: Preset, faces: np.ndarray, mu_rows: torch.Tensor) -> None:
         super().__init__()
         self.vd = model.vertex_decoder
+        self.fields = model.pose_fields
         self.w = preset.loss
         self.register_buffer("faces", torch.as_tensor(faces, dtype=torch.long), persistent=False)
         self.register_buffer("mu_rows", mu_rows, persistent=False)  # (G, Z) frozen-encoder means per geometry row
@@ -77,7 +71,9 @@ class PhaseBNet(nn.Module):
     def forward(self, b: PhaseBBatch):
         mu_src, mu_tgt = self.mu_rows[b.src_rows], self.mu_rows[b.tgt_rows]
         direction, r = normalised_delta(mu_tgt - mu_src)
-        pred = self.vd(b.v_src, b.n_src, mu_src, direction, r, b.kind, b.knn)["vertices"]
+        weights = self.fields.weights(direction, b.kind)
+        field_disp = self.fields.displacement(b.v_src, direction, r, b.kind)
+        pred = self.vd(b.v_src, b.n_src, mu_src, direction, r, b.kind, b.knn, weights, field_disp)["vertices"]
         t = losses.vertex_losses(pred, b.v_src, b.v_tgt, b.knn, self.faces, self.w, b.corrective)
         return losses.weighted_sum(t, self.w), {k: v.detach() for k, v in t.items()}
 
@@ -99,30 +95,6 @@ def train_phase_a(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
     return run_phase(spec, model, preset, run_dir, device, fresh=fresh, progress=progress)
 
 
-@torch.no_grad()
-def encode_rows(model: LatentReRig, corpus: Corpus, rows: list[int], device: torch.device,
-                progress: bool = True) -> torch.Tensor:
-    """Frozen-encoder means (G, Z) of the given geometry rows (all stored K samples; other rows 0)."""
-    from tqdm import tqdm
-
-    out = torch.zeros(corpus.manifest["n_geometries"], model.cfg.latent)
-    pts, vals = corpus.arrays["sdf_points"], corpus.arrays["sdf_values"]
-    chunk = 32
-    for i in tqdm(range(0, len(rows), chunk), desc="encoding states", disable=not progress, unit="batch"):
-        r = rows[i:i + chunk]
-        p = torch.from_numpy(np.asarray(pts[r])).float().to(device)
-        v = torch.from_numpy(np.asarray(vals[r])).float().to(device)
-        out[r] = model.encode_mu(p, v).cpu()
-    return out
-
-
-def training_directions(sampler: PhaseBSampler, corpus: Corpus, mu_rows: torch.Tensor) -> torch.Tensor:
-    """(N, Z) unit delta directions of every training pair (all kinds), the ones Phase B sees."""
-    idx = torch.tensor([[corpus.row(s) for s in sampler.states(p)] for pairs in sampler.by_kind.values() for p in pairs])
-    direction, r = normalised_delta(mu_rows[idx[:, 1]] - mu_rows[idx[:, 0]])
-    return direction[r > 0]
-
-
 def freeze_encoder(model: LatentReRig) -> None:
     """Phase B: the encoder (and Phase A parts) are frozen and in eval mode."""
     for part in (model.encoder, model.sdf_decoder, model.char_head, model.pose_head):
@@ -141,7 +113,7 @@ def phase_b_inputs(model: LatentReRig, preset: Preset, corpus: Corpus, device: t
 
 
 def field_fit_seed(preset: Preset) -> int:
-    """Seed of the prototype fields' vertex subsets."""
+    """Seed of the pose fields' vertex subsets."""
     return preset.train.seed + 3000
 
 
@@ -151,13 +123,8 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
     torch.manual_seed(preset.train.seed + 7 + rank)
     freeze_encoder(model)
     sampler, mu_rows = phase_b_inputs(model, preset, corpus, device, rank, progress=progress and rank == 0)
-    if preset.model.vd_whiten:
-        model.vertex_decoder.set_direction_whitening(training_directions(sampler, corpus, mu_rows).to(device))
-    if preset.model.vd_prototypes:
-        model.vertex_decoder.set_pose_prototypes(pose_prototypes(sampler, corpus, mu_rows, preset.model.n_poses).to(device))
-        if preset.model.vd_proto_fields:
-            fit_prototype_fields(model.vertex_decoder, sampler, corpus, mu_rows, field_fit_seed(preset),
-                                 progress=progress and rank == 0)
+    model.pose_fields.set_prototypes(pose_prototypes(sampler, corpus, mu_rows, preset.model.n_poses).to(device))
+    fit_pose_fields(model.pose_fields, sampler, corpus, mu_rows, field_fit_seed(preset), progress=progress and rank == 0)
     get, put = _rng_accessors(sampler)
     net = PhaseBNet(model, preset, corpus.faces, mu_rows).to(device)
     spec = PhaseSpec("b", steps or preset.train.b_steps, preset.train.b_lr, net,
@@ -168,7 +135,7 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
 def train(preset: Preset, corpus: Corpus, run_dir: Path, phases: str = "all", device: torch.device | None = None,
           fresh: bool = False, progress: bool = True) -> Path:
     """Run phase A, B or both; writes run_dir/model.safetensors (all parts) at the end."""
-    from latent_model.train.loop import select_device
+    from latent_model.runtime import select_device
 
     device = device or select_device()
     run_dir = Path(run_dir)
