@@ -10,7 +10,6 @@ Needs an X server:  xvfb-run -a python bench/bench_explorer.py [--moves 20] [--t
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 import time
@@ -32,14 +31,13 @@ def main() -> None:
     from PySide6.QtWidgets import QApplication
 
     from explorer.main_window import MainWindow
-    from explorer.session import Selection
+    from explorer.selection import Selection
 
     torch.set_num_threads(args.threads)
     app = QApplication.instance() or QApplication(sys.argv[:1])
     t0 = time.perf_counter()
     win = MainWindow(Selection(pose=args.pose))
-    win.resize(1680, 900)
-    win.show()
+    win.show()  # at the default size (fits 1366x768), as a user gets it
 
     def wait(cond, timeout=600.0):
         end = time.perf_counter() + timeout
@@ -50,7 +48,8 @@ def main() -> None:
                 raise SystemExit("timed out waiting for the window")
 
     wait(lambda: win.is_settled())
-    print(f"startup to first prediction on screen + heatmaps: {time.perf_counter() - t0:.1f} s")
+    print(f"startup to first prediction on screen + heatmaps: {time.perf_counter() - t0:.1f} s "
+          f"(window {win.width()}x{win.height()})")
     # slider -> screen, one move at a time (each waits for its prediction to be drawn)
     lat, model, draw, dec = [], [], [], []
     for k in range(args.moves):

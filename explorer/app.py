@@ -35,10 +35,16 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--mesh", help="open this mesh file and make it the target")
     ap.add_argument("--session", help="load a saved session (JSON)")
     ap.add_argument("--tab", type=int, default=0, choices=(0, 1, 2), help="heatmap tab to show (2 = noise floor)")
-    ap.add_argument("--screenshot", help="render once, save this PNG and exit")
-    ap.add_argument("--size", default="1680x900", help="window size WxH (default 1680x900)")
+    ap.add_argument("--screenshot", help="render once, save this PNG and exit (non-zero, with the error, if anything fails)")
+    ap.add_argument("--size", default="1366x768",
+                    help="window size WxH (default 1366x768), shrunk to fit the screen")
     ap.add_argument("--timeout", type=float, default=600.0, help="--screenshot gives up after this many seconds")
     return ap
+
+
+def _fail(msg: str, rc: int = 2) -> int:
+    print(f"lrr-explorer: error: {msg}", file=sys.stderr)
+    return rc
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -49,19 +55,28 @@ def main(argv: list[str] | None = None) -> int:
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
         print("lrr-explorer: no display; run it on a desktop or under Xvfb: xvfb-run -a lrr-explorer ...", file=sys.stderr)
         return 2
-    from latent_model.transfer import parse_strategy
+    from latent_model.meshio import load_mesh
 
-    from explorer.session import Selection, SessionError
+    from explorer.selection import Selection, read_session
 
+    # everything the command line names is checked before the model loads: a bad file fails fast
     try:
         sel = Selection.from_dict(dict(kind=args.kind, pose=args.pose, pose_b=args.pose_b, blend=args.blend,
-                                       magnitude=args.magnitude, strategy=parse_strategy(args.strategy),
+                                       magnitude=args.magnitude, strategy=args.strategy,
                                        colour="displacement" if args.displacement else "error", compare=args.compare,
                                        **({"target": args.target} if args.target else {})))
-        w, h = (int(x) for x in args.size.lower().split("x"))
-    except (ValueError, SessionError) as e:
-        print(f"lrr-explorer: error: {e}", file=sys.stderr)
-        return 2
+        try:
+            w, h = (int(x) for x in args.size.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"--size {args.size!r}: use WxH, e.g. 1366x768") from None
+        mesh = None
+        if args.mesh:
+            if not Path(args.mesh).is_file():
+                raise ValueError(f"{args.mesh}: no such mesh file")
+            mesh = load_mesh(args.mesh)
+        saved = read_session(args.session) if args.session else None
+    except (ValueError, OSError) as e:  # SessionError and MeshError are ValueErrors
+        return _fail(str(e))
 
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
@@ -70,56 +85,62 @@ def main(argv: list[str] | None = None) -> int:
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
     win = MainWindow(sel)
-    win.resize(w, h)
+    win.fit_to_screen(w, h)
     win.heatmaps.setCurrentIndex(args.tab)
     win.show()
-    status = {"rc": 0, "startup": [args.mesh, args.session]}
+    status = {"rc": 0, "error": None}
 
-    def after_load(name: str, _result) -> None:
-        if name != "load":
-            return
-        if args.mesh:
-            win.open_path(args.mesh)
-        if args.session:
-            win.load_session(args.session)
+    def after_load(_session) -> None:
+        if mesh is not None:
+            win.open_path(args.mesh, mesh)
+        if saved is not None:
+            win.restore_session(*saved)
 
-    win.worker.job_done.connect(after_load)
+    win.loaded.connect(after_load)
 
     if args.screenshot:
         out = Path(args.screenshot)
-        out.parent.mkdir(parents=True, exist_ok=True)
         import time
 
         started = time.perf_counter()
         timer = QTimer(win)
+        # any error shown while rendering the screenshot fails the run (the image would not show
+        # what was asked for); the first one is the one to report
+        win.error_shown.connect(lambda msg: status.update(error=status["error"] or msg))
+
+        def leave(rc: int, msg: str | None = None) -> None:
+            timer.stop()
+            if msg:
+                print(f"lrr-explorer: error: {msg}", file=sys.stderr)
+            status["rc"] = rc
+            app.quit()
 
         def poll() -> None:
             try:
                 _poll()
             except Exception as e:  # noqa: BLE001 - report and leave, never hang
-                timer.stop()
-                print(f"lrr-explorer: error: {e}", file=sys.stderr)
-                status["rc"] = 1
-                app.quit()
+                leave(1, str(e))
 
         def _poll() -> None:
-            wants_noise = args.tab == 2 and win.heatmaps.noise_target is None and win.last_error is None
-            wants_mesh = bool(args.mesh) and (win.state is None or win.state.target not in (win.worker.session.meshes if win.worker.session else {}))
-            if win.last_error and win.state is None:
-                print(f"lrr-explorer: error: {win.last_error}", file=sys.stderr)
-                status["rc"] = 1
-                app.quit()
-            elif win.is_settled() and not wants_noise and not (wants_mesh and win.last_error is None):
+            s = win.session
+            if status["error"]:
+                leave(1, status["error"])
+            elif s is not None and win.is_settled() and _shows_what_was_asked(s):
                 timer.stop()
                 win.views.render()
                 app.processEvents()
                 win.save_screenshot(out)
                 print(f"wrote {out}")
-                app.quit()
+                leave(0)
             elif time.perf_counter() - started > args.timeout:
-                print(f"lrr-explorer: gave up after {args.timeout:.0f} s without a prediction on screen", file=sys.stderr)
-                status["rc"] = 1
-                app.quit()
+                leave(1, f"gave up after {args.timeout:.0f} s without a prediction on screen")
+
+        def _shows_what_was_asked(s) -> bool:
+            if s.pending_selection is not None or s.selection is None or s.state.selection.target != s.selection.target:
+                return False
+            if mesh is not None and not s.is_mesh(s.state.target):
+                return False
+            return args.tab != 2 or (s.noise is not None and s.noise.target == s.state.target)
 
         timer.timeout.connect(poll)
         timer.start(200)

@@ -1,15 +1,21 @@
 """The control panel: target, pair kind, poses A/B, conditioning strategy, magnitude and blend
 sliders, display toggles and reset buttons. Emits `changed(Selection)` on every edit (the
-window coalesces the resulting predictions)."""
+window makes it the session's selection); bound to a session, it shows the session's selection
+and, for the colouring box, what the prediction view shows."""
 from __future__ import annotations
 
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
                                QSlider, QVBoxLayout, QWidget)
 
-from explorer.session import Selection
+from explorer.results import ViewState
+from explorer.selection import Selection
+from explorer.session import Session
 
 NONE_POSE = "(none)"
+DISPLACEMENT_TIP = "Colour the prediction by how far each vertex moved from the source, not by its error against the truth"
+NO_TRUTH_TIP = ("An opened mesh has no ground truth, so its prediction is coloured by displacement from the source "
+                "(choose a held-out identity to colour by error)")
 STRATEGY_ITEMS = (("mean pose delta", "mean_pose_delta"), ("nearest identity delta", "nearest_identity_delta"),
                   ("chosen identity", "identity"))
 
@@ -57,7 +63,9 @@ class Controls(QWidget):
 
         disp = QGroupBox("Display", self)
         dl = QVBoxLayout(disp)
-        self.displacement = QCheckBox("Colour by displacement (not error)", disp)
+        self.displacement = QCheckBox("Colour by displacement", disp)
+        self.displacement.setToolTip(DISPLACEMENT_TIP)
+        self._colour = "error"  # the user's choice (the box shows displacement, fixed, for a mesh without truth)
         self.compare = QCheckBox("Compare mean vs nearest", disp)
         self.wireframe = QCheckBox("Wireframe", disp)
         for w in (self.displacement, self.compare, self.wireframe):
@@ -82,7 +90,8 @@ class Controls(QWidget):
         self.kind.currentIndexChanged.connect(self._kind_changed)
         self.magnitude.valueChanged.connect(self._emit)
         self.blend.valueChanged.connect(self._emit)
-        for w in (self.displacement, self.compare, self.wireframe):
+        self.displacement.toggled.connect(self._colour_toggled)
+        for w in (self.compare, self.wireframe):
             w.toggled.connect(self._emit)
         self.reset_sliders.clicked.connect(self.do_reset_sliders)
         self._poses_by_kind: dict[str, list[str]] = {}
@@ -110,6 +119,7 @@ class Controls(QWidget):
             self._fill_poses(self.kind.currentText())
         finally:
             self._quiet = False
+        self._emit(quiet=True)  # labels and enabled states follow the choices
         self.setEnabled(True)
 
     @staticmethod
@@ -138,6 +148,32 @@ class Controls(QWidget):
         self._quiet = was
         self._emit()
 
+    # -------------------------------------------------------------- the session
+    def bind(self, session: Session) -> None:
+        """Follow a session: show its selection, its opened meshes and how its prediction is coloured."""
+        session.events.selection.connect(self.show_selection)
+        session.events.state.connect(self.show_state)
+        session.events.mesh_opened.connect(lambda m: self.add_target(m.name))
+
+    def show_state(self, state: ViewState) -> None:
+        """The colouring box shows the prediction's colouring: checked and fixed without truth."""
+        fixed = state.truth is None
+        box = self.displacement
+        box.blockSignals(True)
+        box.setChecked(True if fixed else self._colour == "displacement")
+        box.setEnabled(not fixed)
+        box.setToolTip(NO_TRUTH_TIP if fixed else DISPLACEMENT_TIP)
+        box.blockSignals(False)
+
+    def toggle_displacement(self) -> None:
+        """The D shortcut: like a click on the box (nothing while the box is fixed)."""
+        if self.displacement.isEnabled():
+            self.displacement.toggle()
+
+    def _colour_toggled(self, on: bool) -> None:
+        self._colour = "displacement" if on else "error"
+        self._emit()
+
     # -------------------------------------------------------------- selection
     def selection(self) -> Selection:
         strat = self.strategy.currentData()
@@ -147,11 +183,13 @@ class Controls(QWidget):
         return Selection(target=self.target.currentText(), kind=self.kind.currentText(), pose=self.pose.currentText(),
                          pose_b=None if pb in ("", NONE_POSE) else pb, blend=self.blend.value() / 100.0,
                          magnitude=self.magnitude.value() / 100.0, strategy=strat,
-                         colour="displacement" if self.displacement.isChecked() else "error",
+                         colour=self._colour,
                          compare=self.compare.isChecked(), wireframe=self.wireframe.isChecked())
 
-    def set_selection(self, sel: Selection) -> None:
-        """Show a selection (e.g. a loaded session) and emit one change."""
+    def show_selection(self, sel: Selection) -> None:
+        """Show a selection (the session's: a loaded session, an opened mesh, a reset); emits nothing."""
+        if sel == self.selection():
+            return
         self._quiet = True
         try:
             self.target.setCurrentText(sel.target)
@@ -166,12 +204,14 @@ class Controls(QWidget):
                 self.strategy.setCurrentIndex(0 if sel.strategy in ("mean", "mean_pose_delta") else 1)
             self.magnitude.setValue(round(sel.magnitude * 100))
             self.blend.setValue(round(sel.blend * 100))
-            self.displacement.setChecked(sel.colour == "displacement")
+            self._colour = sel.colour
+            if self.displacement.isEnabled():
+                self.displacement.setChecked(sel.colour == "displacement")
             self.compare.setChecked(sel.compare)
             self.wireframe.setChecked(sel.wireframe)
         finally:
             self._quiet = False
-        self._emit()
+        self._emit(quiet=True)
 
     def condition_on(self, identity: str) -> None:
         """Chosen-identity conditioning (a heatmap click)."""
@@ -190,11 +230,11 @@ class Controls(QWidget):
         self._quiet = False
         self._emit()
 
-    def _emit(self, *args) -> None:
+    def _emit(self, *args, quiet: bool = False) -> None:
         self.magnitude_label.setText(f"{self.magnitude.value() / 100:.2f}x")
         self.blend_label.setText(f"{self.blend.value() / 100:.2f}")
         self.identity.setEnabled(self.strategy.currentData() == "identity")
         has_b = self.pose_b.currentText() not in ("", NONE_POSE)
         self.blend.setEnabled(has_b)
-        if not self._quiet:
+        if not (self._quiet or quiet):
             self.changed.emit(self.selection())

@@ -13,7 +13,8 @@ from PySide6.QtWidgets import QLabel, QTabWidget, QVBoxLayout, QWidget
 
 from latent_model.transfer import GATE_HI, GATE_LO
 
-from explorer.session import HeatmapData, NoiseFloor
+from explorer.results import Failed, HeatmapData, NoiseFloor
+from explorer.session import Session
 
 TARGET_COLOUR = "#00e5ff"
 COND_COLOUR = "#ff3d7f"
@@ -42,13 +43,11 @@ class MatrixCanvas(FigureCanvasQTAgg):
         self.fig.colorbar(im, ax=self.ax, location="bottom", shrink=0.7, aspect=30, label=cbar_label)
         n = len(labels)
         step = max(1, n // 16)
-        ticks = list(range(0, n, step))
-        for lab in highlight:
-            if lab in labels and labels.index(lab) not in ticks:
-                ticks.append(labels.index(lab))
-        ticks.sort()
-        self.ax.set_xticks(ticks, [labels[i] for i in ticks], rotation=90, fontsize=6)
-        self.ax.set_yticks(ticks, [labels[i] for i in ticks], fontsize=6)
+        marked = [labels.index(lab) for lab in highlight if lab in labels]
+        # every step-th label, and the highlighted ones without a regular label crowding them
+        ticks = sorted(set(marked) | {i for i in range(0, n, step) if all(abs(i - j) * 2 >= step for j in marked)})
+        self.ax.set_xticks(ticks, [labels[i] for i in ticks], rotation=90, fontsize=7)
+        self.ax.set_yticks(ticks, [labels[i] for i in ticks], fontsize=7)
         for lab, colour in highlight.items():
             if lab not in labels:
                 continue
@@ -59,7 +58,7 @@ class MatrixCanvas(FigureCanvasQTAgg):
                 if t.get_text() == lab:
                     t.set_color(colour)
                     t.set_fontweight("bold")
-        self.ax.set_title(title, fontsize=8)
+        self.ax.set_title(title, fontsize=9)
         self.draw_idle()
 
     def cell_centre(self, row: int, col: int) -> tuple[float, float]:
@@ -78,6 +77,9 @@ class MatrixCanvas(FigureCanvasQTAgg):
 
 
 class NoiseCanvas(FigureCanvasQTAgg):
+    """R_cond/noise of each pose as a sorted bar, against the noise gate's bounds: one labelled
+    row per pose (a scatter of d_noise against d_condition piled the face poses' labels up)."""
+
     def __init__(self, parent: QWidget | None = None) -> None:
         self.fig = Figure(figsize=(4, 4), dpi=90, layout="constrained")
         super().__init__(self.fig)
@@ -86,23 +88,29 @@ class NoiseCanvas(FigureCanvasQTAgg):
     def plot(self, nf: NoiseFloor) -> None:
         self.fig.clear()
         ax = self.fig.add_subplot(111)
-        x, y = np.asarray(nf.d_noise), np.asarray(nf.d_condition)
-        ax.scatter(x, y, s=18, c="#1f77b4")
-        for p, a, b in zip(nf.poses, x, y):
-            ax.annotate(p, (a, b), fontsize=6, xytext=(2, 2), textcoords="offset points")
-        hi = max(float(x.max(initial=1)), float(y.max(initial=1))) * 1.1
-        ax.plot([0, hi], [0, hi], "k--", lw=0.8, label="R_cond/noise = 1")
-        # the Transfer API's noise gate: no motion under GATE_LO, the decoder's output untouched over GATE_HI
-        ax.plot([0, hi / GATE_LO], [0, hi], ":", color="#d62728", lw=0.9, label=f"R = {GATE_LO:g}: gate closed below")
-        ax.plot([0, hi / GATE_HI], [0, hi], ":", color="#2ca02c", lw=0.9, label=f"R = {GATE_HI:g}: gate open above")
-        ax.set_xlim(0, hi)
-        ax.set_ylim(0, hi)
-        ax.set_xlabel("d_noise: two SDF samplings of the posed state", fontsize=7)
-        ax.set_ylabel("d_condition: |std(mu_pose) - std(mu_neutral)|", fontsize=7)
         r = nf.ratios
-        ax.set_title(f"noise floor of {nf.target} ({len(nf.poses)} poses)\nR_cond/noise mean {r.mean():.2f}, "
-                     f"median {np.median(r):.2f}" if len(r) else f"noise floor of {nf.target}", fontsize=7)
-        ax.legend(fontsize=6, loc="lower right")
+        order = np.argsort(r)  # largest at the top
+        rs = np.maximum(r[order], 1e-2)
+        colours = np.where(rs < GATE_LO, "#d62728", np.where(rs < GATE_HI, "#ff9f1c", "#2ca02c"))
+        y = np.arange(len(rs))
+        ax.barh(y, rs, left=0, color=colours, height=0.7)
+        ax.set_yticks(y, [nf.poses[i] for i in order], fontsize=8)
+        ax.set_xscale("log")
+        lo = min(0.5, float(rs.min(initial=1)) * 0.8)
+        ax.set_xlim(lo, max(10.0, float(rs.max(initial=1)) * 1.3))
+        ax.axvline(1.0, color="k", ls="--", lw=0.8, label="R = 1: noise level")
+        # the Transfer API's noise gate: no motion under GATE_LO, the decoder's output untouched over GATE_HI
+        ax.axvline(GATE_LO, color="#d62728", ls=":", lw=1.0, label=f"R = {GATE_LO:g}: gate closed below")
+        ax.axvline(GATE_HI, color="#2ca02c", ls=":", lw=1.0, label=f"R = {GATE_HI:g}: gate open above")
+        hi = ax.get_xlim()[1]
+        ax.set_xticks([t for t in (0.5, 1, 2, 5, 10, 20, 50, 100) if lo <= t <= hi])
+        ax.xaxis.set_major_formatter("{x:g}")
+        ax.xaxis.set_minor_formatter("")
+        ax.tick_params(axis="x", labelsize=8)
+        ax.set_xlabel("R_cond/noise = d_condition / d_noise", fontsize=8)
+        ax.set_title(f"noise floor of {nf.target} ({len(nf.poses)} poses)\nR mean {r.mean():.2f}, "
+                     f"median {np.median(r):.2f}" if len(r) else f"noise floor of {nf.target}", fontsize=9)
+        self.fig.legend(fontsize=7, loc="outside lower center", ncols=1, frameon=False)  # never over a bar
         self.draw_idle()
 
 
@@ -130,11 +138,26 @@ class HeatmapPanel(QTabWidget):
         self.addTab(self.cosine, "Pose cosine")
         self.addTab(noise_page, "Noise floor")
         self.currentChanged.connect(lambda i: self.noise_requested.emit() if i == 2 else None)
-        self.data: HeatmapData | None = None
-        self.noise_target: str | None = None
+        self.session: Session | None = None
+
+    def bind(self, session: Session) -> None:
+        """Draw the session's heatmaps and noise floor as they arrive."""
+        self.session = session
+        session.events.heatmaps.connect(self.show_data)
+        session.events.noise.connect(self.show_noise)
+        session.events.failed.connect(self.show_failure)
+
+    @property
+    def data(self) -> HeatmapData | None:
+        """The heatmaps drawn (the session's)."""
+        return None if self.session is None else self.session.heatmap_data
+
+    @property
+    def noise_target(self) -> str | None:
+        """The target whose noise floor is drawn."""
+        return None if self.session is None or self.session.noise is None else self.session.noise.target
 
     def show_data(self, d: HeatmapData) -> None:
-        self.data = d
         hl = {d.target: TARGET_COLOUR}
         if d.conditioning:
             hl[d.conditioning] = COND_COLOUR
@@ -147,11 +170,14 @@ class HeatmapPanel(QTabWidget):
                          hl, "cosine")
 
     def show_noise(self, nf: NoiseFloor) -> None:
-        self.noise_target = nf.target
-        self.noise_note.setText(f"Noise floor of {nf.target}: points above the dashed line carry a pose signal "
+        self.noise_note.setText(f"Noise floor of {nf.target}: poses right of the dashed line carry a pose signal "
                                 f"larger than SDF-resampling noise (the paper's R_cond/noise); the dotted lines "
                                 f"bound the predictions' noise gate.")
         self.noise.plot(nf)
+
+    def show_failure(self, f: Failed) -> None:
+        if f.job is NoiseFloor:
+            self.noise_message(f"noise floor unavailable: {f.message}")
 
     def noise_message(self, text: str) -> None:
         self.noise_note.setText(text)

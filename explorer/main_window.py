@@ -1,47 +1,64 @@
 """The main window: controls | three linked views | heatmap panel, a File menu, drag-and-drop,
-shortcuts, a status bar with progress and the last update's time. Heavy work runs in the
-model worker; errors a user can cause are shown in a dialog and the window keeps running."""
+shortcuts, a status bar with progress and the last update's time.
+
+The window owns no model state: the `Session` does (selection, prediction shown, heatmaps, noise
+floor, opened meshes, pending work) and the widgets subscribe to its events. The window is the
+controller between them: it turns edits into `Session.select`, events that need work into worker
+jobs, and each worker result, dispatched by its type, into `Session.apply`. Errors a user can
+cause are shown in a dialog and the window keeps running."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 from PySide6.QtCore import Qt, QTimer, Signal
-from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtGui import QAction, QGuiApplication, QKeySequence
 from PySide6.QtWidgets import (QFileDialog, QLabel, QMainWindow, QMessageBox, QProgressBar, QScrollArea,
-                               QSplitter, QWidget)
+                               QSplitter)
+
+from latent_model.atomic import atomic_write
+from latent_model.meshio import EXPORT_FORMATS, FORMATS, UserMesh, load_mesh
 
 from explorer.controls import Controls
 from explorer.heatmaps import HeatmapPanel
-from explorer.session import Selection, Session, ViewState, read_session, save_session
+from explorer.results import (Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened, NoiseFloor, Predicted,
+                              ViewState)
+from explorer.selection import Selection, read_session, save_session
+from explorer.session import Loaded, Session
 from explorer.viewports import ViewPanel
 from explorer.workers import ModelWorker
 
-MESH_FILTER = "Meshes (*.obj *.ply *.stl *.glb *.gltf *.off)"
+MESH_FILTER = "Meshes (" + " ".join(f"*{x}" for x in FORMATS) + ")"
+EXPORT_FILTER = ";;".join(f"{x[1:].upper()} (*{x})" for x in EXPORT_FORMATS)
+DEFAULT_SIZE = (1366, 768)  # fits the smallest common laptop screen; shrunk further to the screen's free area
+SPLIT_SIZES = (280, 766, 320)  # controls | views | heatmaps at the default width
+
+
+def fit_size(wanted: tuple[int, int], available: tuple[int, int], frame: tuple[int, int] = (0, 0)) -> tuple[int, int]:
+    """The window's (width, height): `wanted`, shrunk so that with its frame (title bar and borders,
+    `frame` = their total width and height) it fits the screen's available area."""
+    return (max(1, min(wanted[0], available[0] - frame[0])), max(1, min(wanted[1], available[1] - frame[1])))
 
 
 class MainWindow(QMainWindow):
-    prediction_shown = Signal(object)  # ViewState, once on screen
+    prediction_shown = Signal(object)  # ViewState, once its points are set in the views
     error_shown = Signal(str)
+    loaded = Signal(object)  # Session, once the controls show its choices
 
     def __init__(self, initial: Selection | None = None, session: Session | None = None,
                  assets_root: Path | None = None) -> None:
         super().__init__()
         self.setWindowTitle("LatentReRig Explorer")
-        self.resize(1680, 900)
         self.initial = initial or Selection()
         self.assets_root = assets_root
-        self.state: ViewState | None = None
-        self.heatmap_key: tuple | None = None
-        self.heatmaps_pending = False
+        self.session: Session | None = None  # set when the load job's result arrives
         self.last_error: str | None = None
         self.error_dialog: QMessageBox | None = None
         self.update_ms: list[float] = []  # request -> on screen, per prediction shown
         self.draw_ms: list[float] = []  # of which: setting the views' points (the render follows at the paint)
         self._on_screen_pending: tuple[float, ViewState] | None = None
-        self._mesh_paths: dict[str, str] = {}
-        self._pending_selection: Selection | None = None
-        self._noise_for: str | None = None  # target whose noise floor is being computed
 
         self.worker = ModelWorker()
         self.controls = Controls(self)
@@ -50,18 +67,23 @@ class MainWindow(QMainWindow):
         scroll = QScrollArea(self)
         scroll.setWidget(self.controls)
         scroll.setWidgetResizable(True)
-        scroll.setMinimumWidth(300)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setMinimumWidth(self.controls.minimumSizeHint().width() + scroll.verticalScrollBar().sizeHint().width())
+        self.views.setMinimumWidth(420)
+        self.heatmaps.setMinimumWidth(240)
         split = QSplitter(Qt.Orientation.Horizontal, self)
         split.addWidget(scroll)
         split.addWidget(self.views)
         split.addWidget(self.heatmaps)
         split.setStretchFactor(1, 1)
-        split.setSizes([310, 980, 390])
+        split.setChildrenCollapsible(False)
+        split.setSizes(list(SPLIT_SIZES))
+        self.splitter = split
         self.setCentralWidget(split)
 
         self.status_text = QLabel("starting", self)
         self.progress = QProgressBar(self)
-        self.progress.setMaximumWidth(220)
+        self.progress.setMaximumWidth(180)
         self.progress.setVisible(False)
         self.update_label = QLabel("", self)
         sb = self.statusBar()
@@ -71,24 +93,49 @@ class MainWindow(QMainWindow):
 
         self._make_actions()
         self.setAcceptDrops(True)
+        self.fit_to_screen()
 
+        # worker results, dispatched by type: the session takes what changes the window state
+        self._handlers: dict[type, Callable] = {
+            Loaded: self._loaded, Predicted: self._predicted, Failed: self._failed,
+            HeatmapData: self._apply, NoiseFloor: self._apply, MeshOpened: self._apply, Exported: self._apply}
+        self.worker.result.connect(self._on_result)
+        self.worker.progress.connect(self._on_progress)
         self.controls.changed.connect(self.request)
         self.controls.view_requested.connect(self.views.set_view)
-        self.controls.reset_all.clicked.connect(lambda: self.controls.set_selection(self._default_selection()))
+        self.controls.reset_all.clicked.connect(self.reset_selection)
         self.heatmaps.identity_clicked.connect(self.controls.condition_on)
         self.heatmaps.noise_requested.connect(self.request_noise)
-        self.worker.predicted.connect(self._on_predicted)
         self.views.on_rendered("prediction", self._prediction_rendered)
-        self.worker.prediction_failed.connect(self.show_error)
-        self.worker.job_progress.connect(self._on_progress)
-        self.worker.job_done.connect(self._on_job_done)
-        self.worker.job_failed.connect(self._on_job_failed)
 
         if session is not None:
-            self.worker.session = session
-            QTimer.singleShot(0, lambda: self._on_job_done("load", session))
+            QTimer.singleShot(0, lambda: self._on_result(Loaded(session)))
         else:
-            self.worker.submit("load", self._load_job)
+            self.worker.submit(Loaded, self._load_job)
+
+    # -------------------------------------------------------------- size
+    def fit_to_screen(self, width: int | None = None, height: int | None = None) -> None:
+        """Resize to width x height (default DEFAULT_SIZE), shrunk to the screen's available area
+        (without taskbars) less the window frame, and moved back onto that area if it sticks out."""
+        w, h = width or DEFAULT_SIZE[0], height or DEFAULT_SIZE[1]
+        screen = self.screen() or QGuiApplication.primaryScreen()
+        if screen is None:
+            self.resize(w, h)
+            return
+        avail = screen.availableGeometry()
+        frame, geo = self.frameGeometry(), self.geometry()
+        extra = (frame.width() - geo.width(), frame.height() - geo.height())
+        w, h = fit_size((w, h), (avail.width(), avail.height()), extra)
+        self.resize(w, h)
+        if self.isVisible() and not avail.contains(self.frameGeometry()):
+            self.move(max(avail.left(), min(frame.left(), avail.right() + 1 - (w + extra[0]))),
+                      max(avail.top(), min(frame.top(), avail.bottom() + 1 - (h + extra[1]))))
+
+    def showEvent(self, e) -> None:
+        super().showEvent(e)
+        if not getattr(self, "_refitted", False):  # the frame's size is known once a window manager decorated it
+            self._refitted = True
+            QTimer.singleShot(200, lambda: self.fit_to_screen(self.width(), self.height()))
 
     # -------------------------------------------------------------- actions
     def _make_actions(self) -> None:
@@ -105,7 +152,7 @@ class MainWindow(QMainWindow):
 
         f = self.menuBar().addMenu("&File")
         act(f, "&Open mesh…", "Ctrl+O", self._open_dialog)
-        act(f, "&Export prediction (OBJ/PLY/GLB)…", "Ctrl+E", self._export_dialog)
+        act(f, "&Export prediction…", "Ctrl+E", self._export_dialog)
         act(f, "Save &screenshot…", "Ctrl+Shift+S", self._screenshot_dialog)
         f.addSeparator()
         act(f, "&Save session…", "Ctrl+S", self._save_session_dialog)
@@ -117,7 +164,7 @@ class MainWindow(QMainWindow):
         act(v, "&Side view", "S", lambda: self.views.set_view("side"))
         act(v, "&Reset view", "R", lambda: self.views.set_view("reset"))
         act(v, "&Wireframe", "W", lambda: self.controls.wireframe.toggle())
-        act(v, "Colour by &displacement", "D", lambda: self.controls.displacement.toggle())
+        act(v, "Colour by &displacement", "D", self.controls.toggle_displacement)
         act(v, "&Compare mean vs nearest", "C", lambda: self.controls.compare.toggle())
         s = self.menuBar().addMenu("&Sliders")
         act(s, "Magnitude +0.1", "]", lambda: self.controls.magnitude.setValue(self.controls.magnitude.value() + 10))
@@ -146,39 +193,110 @@ class MainWindow(QMainWindow):
         s.attach_truth(ShippedPaths.at(self.assets_root).identities)
         target = self.initial.target if self.initial.target in s.targets else s.targets[0]
         yield f"regenerating and encoding {target}", 0.7
-        s.prepared(target, "neutral_to_pose", self.initial.pose if self.initial.pose in s.poses() else s.poses()[0])
+        s.prepared(target, "neutral_to_pose", self.initial.pose if self.initial.pose in s.poses() else None)
+        return Loaded(s)
+
+    @property
+    def state(self) -> ViewState | None:
+        """The prediction on screen (the session's; None before the model is loaded)."""
+        return None if self.session is None else self.session.state
+
+    # -------------------------------------------------------------- results (UI thread)
+    def _on_result(self, result) -> None:
+        if not isinstance(result, Predicted):
+            self.progress.setVisible(False)
+        self._handlers[type(result)](result)
+
+    def _apply(self, result) -> None:
+        self.session.apply(result)
+
+    def _loaded(self, result: Loaded) -> None:
+        s = self.session = result.session
         self.worker.session = s
-        return s
+        self.controls.bind(s)
+        self.views.bind(s)
+        self.heatmaps.bind(s)
+        ev = s.events
+        ev.selection.connect(self._selected)
+        ev.state.connect(self._state_shown)
+        ev.heatmaps_wanted.connect(self._start_heatmaps)
+        ev.heatmaps.connect(lambda _: self.status_text.setText("ready"))
+        ev.noise.connect(lambda _: self.status_text.setText("ready"))
+        ev.mesh_opened.connect(lambda m: self.status_text.setText(m.summary))
+        ev.exported.connect(lambda e: self.status_text.setText(f"exported {e.path}"))
+        ev.failed.connect(lambda f: self.show_error(f.message))
+        self.controls.set_choices(s.targets, s.kinds(), {k: s.poses(k) for k in s.kinds()}, s.training_ids)
+        self.status_text.setText(f"ready: {len(s.test_ids)} held-out identities, {len(s.training_ids)} training "
+                                 f"identities in the bank")
+        sel = self.initial
+        s.select(sel if sel.target in s.targets else replace(sel, target=s.targets[0]))
+        self.loaded.emit(s)
 
-    def _default_selection(self) -> Selection:
-        s = self.worker.session
-        sel = Selection()
-        if s is not None and s.targets and sel.target not in s.targets:
-            sel.target = s.targets[0]
-        return sel
+    def _predicted(self, result: Predicted) -> None:
+        t_draw = time.perf_counter()
+        self.session.apply(result)  # -> the views draw it (event `state`)
+        self.draw_ms.append((time.perf_counter() - t_draw) * 1000)
+        self._on_screen_pending = (result.requested, result.state)  # timed when the prediction view's render ends
+        self.prediction_shown.emit(result.state)
 
-    # -------------------------------------------------------------- requests
+    def _failed(self, result: Failed) -> None:
+        if self.session is None:  # the load job (or a request before it ended)
+            self.show_error(f"could not load the model: {result.message}" if result.job is Loaded else result.message)
+        else:
+            self.session.apply(result)  # -> event `failed`: the dialog
+
+    def _on_progress(self, msg: str, frac) -> None:
+        self.progress.setVisible(True)
+        if frac is None:
+            self.progress.setRange(0, 0)
+        else:
+            self.progress.setRange(0, 100)
+            self.progress.setValue(int(frac * 100))
+        self.status_text.setText(msg)
+
+    # -------------------------------------------------------------- session events -> work
     def request(self, sel: Selection | None = None) -> None:
-        sel = sel or self.controls.selection()
-        if self.worker.session is None or not sel.target:
+        """An edit in the controls (or a caller): make it the session's selection."""
+        if self.session is not None:
+            self.session.select(sel or self.controls.selection())
+
+    def reset_selection(self) -> None:
+        if self.session is not None:
+            self.session.select(self.session.default_selection())
+
+    def _selected(self, sel: Selection) -> None:
+        if not sel.target:
             return
         if sel.wireframe != self.views.wireframe:
             self.views.set_wireframe(sel.wireframe)
         self.worker.request(sel)
 
+    def _state_shown(self, state: ViewState) -> None:
+        if self.heatmaps.currentIndex() == 2:
+            self.request_noise()
+
+    def _start_heatmaps(self, req: HeatmapRequest) -> None:
+        s = self.session
+        self.worker.cancel(HeatmapData)
+
+        def job():
+            yield "heatmaps", None
+            return s.heatmaps(req.selection, req.conditioning)
+
+        self.worker.submit(HeatmapData, job)
+
     def request_noise(self) -> None:
-        s = self.worker.session
-        target = self.controls.target.currentText()
-        if s is None:
+        s = self.session
+        if s is None or s.selection is None:
             return
+        target = s.selection.target
         if not s.has_truth(target):
             self.heatmaps.noise_message(f"The noise floor needs ground truth: choose a held-out identity as the target "
                                         f"({target} is an opened mesh).")
             return
-        if self.heatmaps.noise_target == target or self._noise_for == target:
+        if not s.begin_noise(target):
             return
-        self._noise_for = target
-        self.worker.cancel_jobs("noise")
+        self.worker.cancel(NoiseFloor)
         self.heatmaps.noise_message(f"computing the noise floor of {target} (two SDF samplings of each posed state)…")
 
         def job():
@@ -187,31 +305,7 @@ class MainWindow(QMainWindow):
                 yield f"noise floor of {target}: {len(nf.poses)} poses", frac
             return nf
 
-        self.worker.submit("noise", job)
-
-    def _on_predicted(self, state: ViewState, t0: float) -> None:
-        self.state = state
-        sel = state.selection
-        t_draw = time.perf_counter()
-        self.views.show_state(state, sel.colour)
-        self.draw_ms.append((time.perf_counter() - t_draw) * 1000)
-        self._on_screen_pending = (t0, state)  # timed when the prediction view's render ends
-        if self.heatmaps.currentIndex() == 2 and self.heatmaps.noise_target != sel.target:
-            self.request_noise()
-        key = (sel.target, sel.kind, sel.pose, state.conditioning)
-        if key != self.heatmap_key:
-            self.heatmap_key = key
-            self.heatmaps_pending = True
-            self.worker.cancel_jobs("heatmaps")
-            s = self.worker.session
-            cond = state.conditioning
-
-            def job():
-                yield "heatmaps", None
-                return s.heatmaps(sel, cond)
-
-            self.worker.submit("heatmaps", job)
-        self.prediction_shown.emit(state)
+        self.worker.submit(NoiseFloor, job, subject=target)
 
     def _prediction_rendered(self) -> None:
         """The prediction view finished a render: the pending prediction is on screen."""
@@ -223,63 +317,6 @@ class MainWindow(QMainWindow):
         self.update_ms.append(ms)
         self.update_label.setText(f"last update {ms:.0f} ms (model {state.seconds * 1000:.0f} ms, "
                                   f"decoder {state.seconds_decoder * 1000:.0f} ms) at {time.strftime('%H:%M:%S')}")
-
-    def _on_progress(self, name: str, msg: str, frac) -> None:
-        self.progress.setVisible(True)
-        if frac is None:
-            self.progress.setRange(0, 0)
-        else:
-            self.progress.setRange(0, 100)
-            self.progress.setValue(int(frac * 100))
-        self.status_text.setText(msg)
-
-    def _on_job_done(self, name: str, result) -> None:
-        self.progress.setVisible(False)
-        if name == "load":
-            s: Session = result
-            poses = {k: s.poses(k) for k in s.kinds()}
-            self.controls.set_choices(s.targets, s.kinds(), poses, s.training_ids)
-            self.status_text.setText(f"ready: {len(s.test_ids)} held-out identities, {len(s.training_ids)} training "
-                                     f"identities in the bank")
-            sel = self.initial
-            if sel.target not in s.targets:
-                sel.target = s.targets[0]
-            self.controls.set_selection(sel)
-        elif name == "heatmaps":
-            self.heatmaps.show_data(result)
-            self.heatmaps_pending = False
-            self.status_text.setText("ready")
-        elif name == "noise":
-            self._noise_for = None
-            self.heatmaps.show_noise(result)
-            self.status_text.setText("ready")
-        elif name == "open":
-            mesh_name, path = result
-            self._mesh_paths[mesh_name] = path
-            self.controls.add_target(mesh_name)
-            self.status_text.setText(self.worker.session.meshes[mesh_name].summary())
-            s = self.worker.session
-            sel, self._pending_selection = self._pending_selection, None
-            if sel is None or sel.target not in s.targets:
-                sel = self.controls.selection()
-                sel.target, sel.kind = mesh_name, "neutral_to_pose"
-            if sel.target in s.meshes:
-                poses = s.poses("neutral_to_pose")
-                sel.kind = "neutral_to_pose"
-                sel.pose = sel.pose if sel.pose in poses else poses[0]
-                sel.pose_b = sel.pose_b if sel.pose_b in poses else None
-            self.controls.set_selection(sel)
-        elif name == "export":
-            self.status_text.setText(f"exported {result}")
-
-    def _on_job_failed(self, name: str, msg: str) -> None:
-        self.progress.setVisible(False)
-        if name == "heatmaps":
-            self.heatmaps_pending = False
-        if name == "noise":
-            self._noise_for = None
-            self.heatmaps.noise_message(f"noise floor unavailable: {msg}")
-        self.show_error(msg if name != "load" else f"could not load the model: {msg}")
 
     def show_error(self, msg: str) -> None:
         """A non-blocking error dialog; the window keeps running."""
@@ -293,50 +330,58 @@ class MainWindow(QMainWindow):
         self.error_shown.emit(msg)
 
     # -------------------------------------------------------------- file operations
-    def open_path(self, path: str | Path) -> None:
-        """Open a user's mesh (in the worker: big meshes take a moment); a bad file gives a dialog."""
+    def open_path(self, path: str | Path, mesh: UserMesh | None = None) -> None:
+        """Open a user's mesh (in the worker: big meshes take a moment); a bad file gives a dialog.
+        `mesh`: the file already read (the command line checks it before the window opens)."""
         path = str(path)
-        if self.worker.session is None:
+        s = self.session
+        if s is None:
             self.show_error("the model is still loading; open the mesh again in a moment")
             return
-        s = self.worker.session
 
         def job():
             yield f"opening {Path(path).name}", None
-            name = s.open_mesh(path)
+            m = mesh if mesh is not None else load_mesh(path)
+            name = s.add_mesh(m)
             yield f"encoding {name}", 0.5
-            s.prepared(name, "neutral_to_pose", s.poses()[0])
-            return name, path
+            try:
+                s.prepared(name)
+            except Exception:
+                s.remove_mesh(name)  # a mesh that cannot be encoded is no target
+                raise
+            return MeshOpened(name, path, m.summary())
 
-        self.worker.submit("open", job)
+        self.worker.submit(MeshOpened, job, subject=path)
 
     def export_path(self, path: str | Path) -> None:
-        if self.state is None:
+        state = self.state
+        if state is None:
             self.show_error("nothing to export yet: wait for a prediction")
             return
-        s, state = self.worker.session, self.state
+        s = self.session
 
         def job():
             yield f"exporting to {path}", None
-            return s.export(state, path)
+            return Exported(s.export(state, path))
 
-        self.worker.submit("export", job)
+        self.worker.submit(Exported, job, subject=str(path))
 
     def save_screenshot(self, path: str | Path) -> Path:
         """The whole window with its 3D views painted in (PNG, written atomically)."""
-        import os
-
-        path = Path(path)
         pix = self.views.paint_into(self.grab(), self)
-        tmp = path.with_name(f".{path.name}.tmp{path.suffix or '.png'}")
-        if not pix.save(str(tmp)):
-            raise OSError(f"{path}: could not write the image")
-        os.replace(tmp, path)
+
+        def write(tmp: Path) -> None:
+            if not pix.save(str(tmp)):
+                raise OSError(f"{path}: could not write the image")
+
+        path = atomic_write(path, write)
         self.status_text.setText(f"screenshot saved to {path}")
         return path
 
     def save_session(self, path: str | Path) -> Path:
-        return save_session(path, self.controls.selection(), self._mesh_paths)
+        s = self.session
+        sel = s.selection if s is not None and s.selection is not None else self.controls.selection()
+        return save_session(path, sel, s.mesh_paths if s is not None else {})
 
     def load_session(self, path: str | Path) -> None:
         try:
@@ -344,12 +389,15 @@ class MainWindow(QMainWindow):
         except ValueError as e:
             self.show_error(str(e))
             return
-        for name, p in meshes.items():
-            if self.worker.session is not None and name not in self.worker.session.meshes:
-                self._pending_selection = sel
-                self.open_path(p)
-        if self._pending_selection is None:
-            self.controls.set_selection(sel)
+        self.restore_session(sel, meshes)
+
+    def restore_session(self, sel: Selection, meshes: dict[str, str]) -> None:
+        """Show a saved selection, opening its meshes first."""
+        if self.session is None:
+            self.show_error("the model is still loading; load the session again in a moment")
+            return
+        for p in self.session.restore(sel, meshes).values():
+            self.open_path(p)
 
     def _open_dialog(self) -> None:
         p, _ = QFileDialog.getOpenFileName(self, "Open mesh", "", MESH_FILTER)
@@ -357,7 +405,7 @@ class MainWindow(QMainWindow):
             self.open_path(p)
 
     def _export_dialog(self) -> None:
-        p, _ = QFileDialog.getSaveFileName(self, "Export prediction", "prediction.obj", "OBJ (*.obj);;PLY (*.ply);;GLB (*.glb)")
+        p, _ = QFileDialog.getSaveFileName(self, "Export prediction", "prediction.obj", EXPORT_FILTER)
         if p:
             self.export_path(p)
 
@@ -397,7 +445,8 @@ class MainWindow(QMainWindow):
     # -------------------------------------------------------------- state
     def is_settled(self) -> bool:
         """A prediction is on screen, its heatmaps are drawn and no work is waiting."""
-        return self.state is not None and not self.heatmaps_pending and self.worker.idle
+        s = self.session
+        return s is not None and s.state is not None and not s.heatmaps_pending and self.worker.idle
 
     def closeEvent(self, e) -> None:
         self.worker.stop()

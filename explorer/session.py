@@ -1,225 +1,45 @@
 """The explorer's session model, free of Qt: selections -> predictions through the Transfer API,
-error/displacement colours, heatmap data, the noise floor, JSON save/load and the coalescing of
-slider updates. The window is a thin view over this (and tests drive it without a display).
+heatmap data, the noise floor, and the window's state (what is selected and shown, what is pending).
+Its pieces: `selection.py` (what the user chose, the session file), `results.py` (typed results),
+`events.py` (the observer), `coalescer.py` (slider updates).
+
+The split follows napari's (`components/camera.py` / `_qt/widgets/qt_dims.py`): the model owns the
+state and announces each change on an `Event`; the Qt views subscribe and only draw. Tests drive
+the model without a display.
+
+Two threads touch a `Session`, on separate parts of it:
+- the model worker thread runs the compute side (`compute`, `heatmaps`, `noise_floor_steps`,
+  `open_mesh`, `export`): it fills caches and returns typed results (`Predicted`, `HeatmapData`,
+  `NoiseFloor`, `MeshOpened`, `Exported`) and never writes the window state;
+- the UI thread writes the window state, only through `select`, `apply(result)`, `restore` and
+  `begin_noise`, and the events fire there. The one structure both sides read, `meshes`, is
+  guarded by a lock.
 """
 from __future__ import annotations
 
-import json
 import threading
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, replace
+from functools import singledispatchmethod
 from pathlib import Path
-from typing import Callable, Generic, TypeVar
+from typing import Callable
 
 import numpy as np
 
+from latent_model.corpus.pairs import pair_states, split_bank_key
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
+from latent_model.types import PAIR_KINDS
 
-SESSION_FORMAT = 1
-ERROR_RANGE_MM = (0.0, 40.0)  # fixed colour range of per-vertex error (shared by every prediction view)
-DISPLACEMENT_RANGE_MM = (0.0, 80.0)  # fixed colour range of |prediction - source|
-STRATEGY_LABELS = {"mean_pose_delta": "mean pose delta", "nearest_identity_delta": "nearest identity delta"}
+from explorer.events import Event
+from explorer.results import (Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened, NoiseFloor, PairRef,
+                              Predicted, Prediction, ViewState)
+from explorer.selection import Selection, SessionError
+
 COMPARE_STRATEGIES = ("mean_pose_delta", "nearest_identity_delta")
 NOISE_POSES = ("elbowBentLf", "elbowSuperBentLf", "kneeBentLf", "clavicleDownwardLf", "shoulderRaiseLf",
                "fingerKnuckleD03Lf", "fingerKnuckleD02Lf", "browDwLf", "puffLf", "cornerUpLf",
                "cornerPuckerLf", "cornerStretchLf", "jawOpen")
-
-
-class SessionError(ValueError):
-    """A selection or session file the user gave cannot be used (message says why and what to do)."""
-
-
-# ----------------------------------------------------------------------------- selection
-@dataclass
-class Selection:
-    """Everything the user chose: the state a session file stores."""
-
-    target: str = "id008"
-    kind: str = "neutral_to_pose"
-    pose: str = "elbowBentLf"
-    pose_b: str | None = None
-    blend: float = 0.0  # 0 = pose A, 1 = pose B
-    magnitude: float = 1.0  # scales r_delta, 0..2
-    # mean_pose_delta | nearest_identity_delta | identity:<id>; mean by default: on held-out bodies it
-    # transfers better than a single identity's delta on every broad body pose (README Results)
-    strategy: str = "mean_pose_delta"
-    colour: str = "error"  # error | displacement
-    compare: bool = False
-    wireframe: bool = False
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @staticmethod
-    def from_dict(d: dict) -> "Selection":
-        if not isinstance(d, dict):
-            raise SessionError("a selection must be a JSON object")
-        names = {f.name for f in fields(Selection)}
-        unknown = set(d) - names
-        if unknown:
-            raise SessionError(f"unknown selection fields {sorted(unknown)}; valid: {sorted(names)}")
-        s = Selection(**d)
-        s.blend = float(s.blend)
-        s.magnitude = float(s.magnitude)
-        if not 0.0 <= s.blend <= 1.0:
-            raise SessionError(f"blend {s.blend} outside [0, 1]")
-        if not 0.0 <= s.magnitude <= 2.0:
-            raise SessionError(f"magnitude {s.magnitude} outside [0, 2]")
-        if s.colour not in ("error", "displacement"):
-            raise SessionError(f"colour {s.colour!r}: use error or displacement")
-        return s
-
-
-def save_session(path: str | Path, sel: Selection, meshes: dict[str, str] | None = None) -> Path:
-    """Write the selection (and the paths of opened meshes) as JSON, atomically."""
-    from latent_model.corpus.store import atomic_write_json
-
-    path = Path(path)
-    atomic_write_json(path, {"format": SESSION_FORMAT, "selection": sel.to_dict(), "meshes": meshes or {}})
-    return path
-
-
-def read_session(path: str | Path) -> tuple[Selection, dict[str, str]]:
-    """(selection, {mesh name: file path}) of a session file."""
-    path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise SessionError(f"{path}: no such session file") from None
-    except (OSError, ValueError) as e:
-        raise SessionError(f"{path}: not a readable session JSON ({e})") from None
-    if not isinstance(d, dict) or d.get("format") != SESSION_FORMAT:
-        raise SessionError(f"{path}: not an explorer session (format {SESSION_FORMAT} expected)")
-    try:
-        return Selection.from_dict(d["selection"]), dict(d.get("meshes", {}))
-    except (KeyError, TypeError) as e:
-        raise SessionError(f"{path}: broken session file ({e})") from None
-
-
-# ----------------------------------------------------------------------------- coalescing
-T = TypeVar("T")
-
-
-class Coalescer(Generic[T]):
-    """At most one request in flight and one waiting: a new request replaces the waiting one, so
-    scrubbing a slider never queues work up. Thread-safe.
-
-    submit(x) -> True when the caller should start work on x now (nothing in flight);
-    done() -> the latest request that arrived meanwhile (start it now) or None (idle)."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._busy = False
-        self._pending: T | None = None
-        self._has_pending = False
-        self.dropped = 0  # requests replaced before they ran
-
-    def submit(self, item: T) -> bool:
-        with self._lock:
-            if not self._busy:
-                self._busy = True
-                return True
-            if self._has_pending:
-                self.dropped += 1
-            self._pending, self._has_pending = item, True
-            return False
-
-    def take(self) -> tuple[bool, T | None]:
-        """Worker side: (True, item) to run next, or (False, None) and the coalescer goes idle."""
-        with self._lock:
-            if self._has_pending:
-                item, self._pending, self._has_pending = self._pending, None, False
-                return True, item
-            self._busy = False
-            return False, None
-
-    def done(self) -> T | None:
-        ok, item = self.take()
-        return item if ok else None
-
-    @property
-    def busy(self) -> bool:
-        return self._busy
-
-
-# ----------------------------------------------------------------------------- results
-@dataclass
-class Prediction:
-    """One prediction: model-frame arrays, all (V, 3) / (V,), with its error against the truth."""
-
-    strategy: str
-    label: str  # conditioning source: "mean" or an identity id
-    vertices: np.ndarray
-    error_mm: np.ndarray | None  # (V,) |pred - truth| in mm, None without truth
-    displacement_mm: np.ndarray  # (V,) |pred - source| in mm
-    normals: np.ndarray | None = None  # (V, 3) unit vertex normals for shading (computed off the UI thread)
-    gate: float = 1.0  # the Transfer API's noise gate (1 = the decoder's output untouched)
-    signal: float = float("inf")  # conditioning delta / latent noise floor
-
-    @property
-    def title(self) -> str:
-        name = STRATEGY_LABELS.get(self.strategy, "identity " + self.strategy.split(":", 1)[-1])
-        cond = f" ({self.label})" if self.strategy != "mean_pose_delta" and not self.strategy.startswith("identity:") else ""
-        if self.error_mm is not None:
-            text = f"{name}{cond}\nerror mean {self.error_mm.mean():.1f} / max {self.error_mm.max():.1f} mm"
-        else:
-            text = f"{name}{cond}\ndisplacement mean {self.displacement_mm.mean():.1f} / max {self.displacement_mm.max():.1f} mm"
-        if self.gate < 1.0:
-            text += f"\nnoise gate {self.gate:.2f}: delta at {self.signal:.1f}x the latent noise floor"
-        return text
-
-
-@dataclass
-class ViewState:
-    """What the three (or, comparing, four) views show for a selection."""
-
-    selection: Selection
-    target: str
-    faces: np.ndarray  # (F, 3)
-    source: np.ndarray  # (V, 3)
-    truth: np.ndarray | None  # (V, 3) or None (an opened mesh has no ground truth)
-    truth_title: str
-    predictions: list[Prediction]  # one, or mean + nearest when comparing
-    seconds: float = 0.0  # time of compute()
-    seconds_decoder: float = 0.0  # of which inside Transfer.predict
-
-    @property
-    def prediction(self) -> Prediction:
-        return self.predictions[0]
-
-    @property
-    def conditioning(self) -> str | None:
-        """The identity whose delta conditioned the (first) prediction, if one did."""
-        lab = self.prediction.label
-        return None if lab in ("mean", "oracle") else lab
-
-
-@dataclass
-class HeatmapData:
-    ids: list[str]  # row/column labels (training identities, then the target if it is not one)
-    identity_distance: np.ndarray  # (n, n) standardised neutral-latent distances
-    cosine_ids: list[str]  # training identities with a delta for the pose
-    pose_cosine: np.ndarray  # (m, m) cosine of standardised deltas
-    pose: str
-    kind: str
-    target: str
-    conditioning: str | None
-
-
-@dataclass
-class NoiseFloor:
-    """Per pose of one target: d_condition = |std(mu_pose) - std(mu_neutral)| and d_noise =
-    |std(mu_pose, sampling a) - std(mu_pose, sampling b)| (two SDF resamplings of the same state)."""
-
-    target: str
-    poses: list[str] = field(default_factory=list)
-    d_condition: list[float] = field(default_factory=list)
-    d_noise: list[float] = field(default_factory=list)
-
-    @property
-    def ratios(self) -> np.ndarray:
-        return np.asarray(self.d_condition) / (np.asarray(self.d_noise) + 1e-6)
 
 
 # ----------------------------------------------------------------------------- the session
@@ -230,17 +50,45 @@ def _noop(msg: str, frac: float | None) -> None:
     pass
 
 
+@dataclass
+class SessionEvents:
+    """What the views subscribe to (each fires on the UI thread, from `select`/`apply`/`restore`)."""
+
+    selection: Event[Selection] = field(default_factory=lambda: Event("selection"))  # controls show it, worker computes it
+    state: Event[ViewState] = field(default_factory=lambda: Event("state"))  # a new prediction is the one shown
+    heatmaps_wanted: Event[HeatmapRequest] = field(default_factory=lambda: Event("heatmaps_wanted"))
+    heatmaps: Event[HeatmapData] = field(default_factory=lambda: Event("heatmaps"))
+    noise: Event[NoiseFloor] = field(default_factory=lambda: Event("noise"))
+    mesh_opened: Event[MeshOpened] = field(default_factory=lambda: Event("mesh_opened"))
+    exported: Event[Exported] = field(default_factory=lambda: Event("exported"))
+    failed: Event[Failed] = field(default_factory=lambda: Event("failed"))
+
+
 class Session:
     """Held-out identities (ground truth regenerated through the rig) and opened meshes, predicted
-    through one `Transfer`. Not thread-safe: the window calls it from one worker thread."""
+    through one `Transfer`, and the window's state over them (see the module docstring for which
+    thread touches what)."""
 
     def __init__(self, transfer, truth=None, test_ids: list[str] | None = None) -> None:
         self.transfer = transfer
         self.truth = truth  # latent_model.shipped.GroundTruth or None
         self.test_ids = list(test_ids or [])
         self.meshes: dict[str, UserMesh] = {}
+        self._meshes_lock = threading.Lock()
         self._prepared: dict[tuple, object] = {}
         self._noise: dict[str, NoiseFloor] = {}
+        # window state: written on the UI thread only
+        self.events = SessionEvents()
+        self.selection: Selection | None = None  # the latest selection asked for
+        self.state: ViewState | None = None  # the prediction shown
+        self.heatmap_key: tuple | None = None  # HeatmapRequest.key of the heatmaps shown or coming
+        self.heatmaps_pending = False
+        self.heatmap_data: HeatmapData | None = None
+        self.noise: NoiseFloor | None = None  # the noise floor shown
+        self.noise_for: str | None = None  # the target whose noise floor is being computed
+        self.mesh_paths: dict[str, str] = {}  # opened mesh name -> its file (saved in session files)
+        self.pending_selection: Selection | None = None  # a restored selection waiting for its meshes
+        self._pending_paths: set[str] = set()
 
     # -------------------------------------------------------------- construction
     @classmethod
@@ -273,7 +121,12 @@ class Session:
     # -------------------------------------------------------------- choices
     @property
     def targets(self) -> list[str]:
-        return (self.test_ids if self.truth is not None else []) + list(self.meshes)
+        with self._meshes_lock:
+            return (self.test_ids if self.truth is not None else []) + list(self.meshes)
+
+    def is_mesh(self, target: str) -> bool:
+        with self._meshes_lock:
+            return target in self.meshes
 
     @property
     def training_ids(self) -> list[str]:
@@ -286,26 +139,32 @@ class Session:
         return self.transfer.bank.poses(kind)
 
     def kinds(self) -> list[str]:
-        from latent_model.corpus.pairs import PAIR_KINDS
-
         return [k for k in PAIR_KINDS if self.poses(k)]
 
     def has_truth(self, target: str) -> bool:
         return self.truth is not None and target in self.test_ids
 
+    def default_selection(self) -> Selection:
+        """The default selection, on the first held-out identity if the default one is unknown."""
+        sel = Selection()
+        targets = self.targets
+        if targets and sel.target not in targets:
+            sel.target = targets[0]
+        return sel
+
     def validate(self, sel: Selection) -> Selection:
         """Raise SessionError with the valid choices when a selection names something unknown."""
-        from latent_model.transfer import parse_strategy
-
-        if sel.target not in self.targets:
-            raise SessionError(f"unknown target {sel.target!r}; valid: {', '.join(self.targets)}")
+        sel = sel.checked()
+        targets = self.targets
+        if sel.target not in targets:
+            raise SessionError(f"unknown target {sel.target!r}; valid: {', '.join(targets)}")
         if sel.kind not in self.kinds():
             raise SessionError(f"unknown pair kind {sel.kind!r}; valid: {', '.join(self.kinds())}")
         poses = self.poses(sel.kind)
         for p in (sel.pose, sel.pose_b):
             if p is not None and p not in poses:
                 raise SessionError(f"unknown pose {p!r} for {sel.kind}; valid: {', '.join(poses)}")
-        s = parse_strategy(sel.strategy)
+        s = sel.strategy
         if s == "oracle":
             raise SessionError("the oracle strategy is for the evaluation only; use mean, nearest or identity:<id>")
         if s.startswith("identity:") and s.split(":", 1)[1] not in self.training_ids:
@@ -317,57 +176,60 @@ class Session:
     # -------------------------------------------------------------- meshes
     def open_mesh(self, path: str | Path, up: str = "auto", units: str = "auto") -> str:
         """Load a user's mesh (MeshError on bad files) and add it to the targets; returns its name."""
-        m = load_mesh(path, up=up, units=units)
-        name = m.name
-        k = 2
-        while name in self.meshes or name in self.test_ids:
-            name = f"{m.name} ({k})"
-            k += 1
-        m.name = name
-        self.meshes[name] = m
+        return self.add_mesh(load_mesh(path, up=up, units=units))
+
+    def add_mesh(self, m: UserMesh) -> str:
+        """Add a loaded mesh to the targets under a name no other target has; returns the name."""
+        with self._meshes_lock:
+            name, k = m.name, 2
+            while name in self.meshes or name in self.test_ids:
+                name = f"{m.name} ({k})"
+                k += 1
+            m.name = name
+            self.meshes[name] = m
         return name
 
-    @staticmethod
-    def _split_key(kind: str, pose: str) -> tuple[str, str | None]:
-        """A bank pose key -> (pose, source component or None) (source_to_combo keys are 'combo<component>')."""
-        if kind == "source_to_combo" and "<" in pose:
-            p, comp = pose.split("<", 1)
-            return p, comp
-        return pose, None
+    def remove_mesh(self, name: str) -> None:
+        """Drop an opened mesh that could not be prepared (it leaves the targets)."""
+        with self._meshes_lock:
+            self.meshes.pop(name, None)
+        self._prepared = {k: v for k, v in self._prepared.items() if k[0] != name}
 
-    def source_mesh(self, target: str, kind: str, pose: str) -> UserMesh:
-        """The source state of the pair (an opened mesh is its own source)."""
-        if target in self.meshes:
-            return self.meshes[target]
+    def pair(self, target: str, kind: str, pose: str) -> PairRef:
+        """The pair a selection names; `pose` is a bank pose key (source_to_combo: 'combo<component>')."""
+        p, comp = split_bank_key(kind, pose)
+        if self.is_mesh(target):
+            return PairRef(target, kind, p, comp, None, None)
         if not self.has_truth(target):
             raise SessionError(f"unknown target {target!r}; valid: {', '.join(self.targets)}")
-        p, comp = self._split_key(kind, pose)
-        src, _ = self.truth.pair(target, kind, p, comp)
-        return from_identity(src, self.truth.faces, target, self.truth.body_faces)
+        src, goal = pair_states(kind, p, comp)
+        return PairRef(target, kind, p, comp, src, goal)
 
-    def truth_state(self, target: str, kind: str, pose: str) -> np.ndarray | None:
-        if not self.has_truth(target):
-            return None
-        p, comp = self._split_key(kind, pose)
-        return self.truth.pair(target, kind, p, comp)[1]
+    def source_mesh(self, pair: PairRef) -> UserMesh:
+        """The source state of the pair (an opened mesh is its own source)."""
+        if pair.source is None:
+            with self._meshes_lock:
+                return self.meshes[pair.target]
+        v = self.truth.state(pair.target, *pair.source)
+        return from_identity(v, self.truth.faces, pair.target, self.truth.body_faces)
 
-    def _source_key(self, target: str, kind: str, pose: str) -> tuple:
-        if target in self.meshes:
-            return (target,)
-        from latent_model.shipped import pair_states
+    def truth_state(self, pair: PairRef) -> np.ndarray | None:
+        """(V, 3) ground truth of the pair's goal state; None for an opened mesh."""
+        return None if pair.goal is None else self.truth.state(pair.target, *pair.goal)
 
-        p, comp = self._split_key(kind, pose)
-        return (target,) + pair_states(kind, p, comp)[0]
-
-    def prepared(self, target: str, kind: str, pose: str):
+    def prepare(self, pair: PairRef):
         """Transfer.prepare of the pair's source (cached: encoding is the slow step)."""
-        key = self._source_key(target, kind, pose)
+        key = pair.cache_key
         if key not in self._prepared:
             if len(self._prepared) > 64:
                 self._prepared.clear()
-            m = self.source_mesh(target, kind, pose)
+            m = self.source_mesh(pair)
             self._prepared[key] = self.transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces)
         return self._prepared[key]
+
+    def prepared(self, target: str, kind: str = "neutral_to_pose", pose: str | None = None):
+        """`prepare` of a target's pair (pose defaults to the kind's first)."""
+        return self.prepare(self.pair(target, kind, pose or self.poses(kind)[0]))
 
     # -------------------------------------------------------------- prediction
     def _predict(self, sel: Selection, strategy: str, prepared, source: np.ndarray,
@@ -377,38 +239,34 @@ class Session:
         out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
         v = out.vertices
         dt = time.perf_counter() - t
-        label = out.label
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
-        return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal), dt
+        return Prediction(strategy, out.label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal), dt
 
     def compute(self, sel: Selection) -> ViewState:
         """Everything the views show for a selection (the one path: Transfer.prepare + predict)."""
-        from latent_model.transfer import parse_strategy
-
         t0 = time.perf_counter()
-        self.validate(sel)
-        prepared = self.prepared(sel.target, sel.kind, sel.pose)
+        sel = self.validate(sel)
+        pair = self.pair(sel.target, sel.kind, sel.pose)
+        prepared = self.prepare(pair)
         source = prepared.vertices
-        truth = self.truth_state(sel.target, sel.kind, sel.pose)
-        truth_title = "ground truth: none for an opened mesh" if truth is None else f"ground truth ({sel.pose})"
+        truth = self.truth_state(pair)
+        truth_title = "ground truth: none\n(an opened mesh)" if truth is None else f"ground truth ({sel.pose})"
         if truth is not None and sel.pose_b is not None and sel.blend > 0:
-            tb = self.truth_state(sel.target, sel.kind, sel.pose_b)
+            tb = self.truth_state(self.pair(sel.target, sel.kind, sel.pose_b))
             truth = ((1.0 - sel.blend) * truth + sel.blend * tb).astype(np.float32)
-            truth_title = f"reference: truth {sel.pose} -> {sel.pose_b} blended {sel.blend:.2f} linearly"
-        strategies = COMPARE_STRATEGIES if sel.compare else (parse_strategy(sel.strategy),)
+            truth_title = f"reference: truths blended\n{sel.pose} -> {sel.pose_b}\nat {sel.blend:.2f}, linearly"
+        strategies = COMPARE_STRATEGIES if sel.compare else (sel.strategy,)
         preds, t_dec = [], 0.0
         for s in strategies:
             p, dt = self._predict(sel, s, prepared, source, truth)
             preds.append(p)
             t_dec += dt
-        return ViewState(sel, sel.target, prepared.faces, source, truth, truth_title, preds,
-                         time.perf_counter() - t0, t_dec)
+        return ViewState(sel, pair, prepared.faces, source, truth, truth_title, preds, time.perf_counter() - t0, t_dec)
 
     def export(self, state: ViewState, path: str | Path, which: int = 0) -> Path:
         """Write a prediction in the frame, units and vertex order of its source file."""
-        mesh = self.source_mesh(state.target, state.selection.kind, state.selection.pose)
-        return export_mesh(mesh, state.predictions[which].vertices, path)
+        return export_mesh(self.source_mesh(state.pair), state.predictions[which].vertices, path)
 
     # -------------------------------------------------------------- heatmaps
     def neutral_latents(self) -> tuple[list[str], np.ndarray]:
@@ -419,7 +277,7 @@ class Session:
         return ids, bank.mu[[rows[i] for i in ids]]
 
     def target_neutral_mu(self, target: str) -> np.ndarray:
-        return self.prepared(target, "neutral_to_pose", self.poses("neutral_to_pose")[0]).mu
+        return self.prepared(target, "neutral_to_pose").mu
 
     def heatmaps(self, sel: Selection, conditioning: str | None = None) -> HeatmapData:
         """Identity-distance matrix of standardised neutral latents (training identities + the
@@ -466,3 +324,107 @@ class Session:
         for _, out in self.noise_floor_steps(target, poses):
             pass
         return out
+
+    # -------------------------------------------------------------- window state (UI thread)
+    def select(self, sel: Selection) -> None:
+        """Make `sel` the selection: the controls show it and the window asks for its prediction."""
+        self.selection = sel
+        self.events.selection.emit(sel)
+
+    def restore(self, sel: Selection, meshes: dict[str, str]) -> dict[str, str]:
+        """A saved session: returns {name: path} of its meshes that must be opened first (its
+        selection is selected once they are, or at once when none is missing)."""
+        with self._meshes_lock:
+            missing = {n: p for n, p in meshes.items() if n not in self.meshes}
+        if missing:
+            self.pending_selection, self._pending_paths = sel, set(missing.values())
+        else:
+            self.select(sel)
+        return missing
+
+    def begin_noise(self, target: str) -> bool:
+        """True when the noise floor of `target` must be computed now (it is then marked in
+        flight); False when it is shown or already being computed."""
+        if (self.noise is not None and self.noise.target == target) or self.noise_for == target:
+            return False
+        self.noise_for = target
+        return True
+
+    @singledispatchmethod
+    def apply(self, result) -> None:
+        """Take a worker's result into the window state and announce it (UI thread)."""
+        raise TypeError(f"not a session result: {type(result).__name__}")
+
+    @apply.register
+    def _(self, result: Predicted) -> None:
+        st = result.state
+        self.state = st
+        self.events.state.emit(st)
+        req = HeatmapRequest(st.selection, st.conditioning)
+        if req.key != self.heatmap_key:
+            self.heatmap_key, self.heatmaps_pending = req.key, True
+            self.events.heatmaps_wanted.emit(req)
+
+    @apply.register
+    def _(self, result: HeatmapData) -> None:
+        if result.key != self.heatmap_key:
+            return  # a job overtaken by a newer selection; the matching one is coming
+        self.heatmap_data, self.heatmaps_pending = result, False
+        self.events.heatmaps.emit(result)
+
+    @apply.register
+    def _(self, result: NoiseFloor) -> None:
+        if self.noise_for is not None and result.target != self.noise_for:
+            return  # overtaken: the noise floor of another target is being computed
+        self.noise, self.noise_for = result, None
+        self.events.noise.emit(result)
+
+    @apply.register
+    def _(self, result: MeshOpened) -> None:
+        self.mesh_paths[result.name] = result.path
+        self.events.mesh_opened.emit(result)
+        self._pending_paths.discard(result.path)
+        if self.pending_selection is not None:
+            self._resolve_pending()
+            return
+        base = self.selection or self.default_selection()
+        self.select(self._for_mesh(replace(base, target=result.name)))
+
+    @apply.register
+    def _(self, result: Exported) -> None:
+        self.events.exported.emit(result)
+
+    @apply.register
+    def _(self, result: Failed) -> None:
+        if result.job is HeatmapData:
+            self.heatmaps_pending, self.heatmap_key = False, None  # the next prediction asks again
+        elif result.job is NoiseFloor:
+            self.noise_for = None
+        elif result.job is MeshOpened and self.pending_selection is not None:
+            self._pending_paths.discard(result.subject)
+            self._resolve_pending()
+        self.events.failed.emit(result)
+
+    def _resolve_pending(self) -> None:
+        """Select the restored selection once none of its meshes is still opening."""
+        if self._pending_paths:
+            return
+        sel, self.pending_selection = self.pending_selection, None
+        if sel.target not in self.targets:  # its mesh failed to open: keep the current target
+            sel = replace(sel, target=(self.selection or self.default_selection()).target)
+        self.select(self._for_mesh(sel))
+
+    def _for_mesh(self, sel: Selection) -> Selection:
+        """An opened mesh is a source mesh: neutral_to_pose with poses that kind has."""
+        if not self.is_mesh(sel.target):
+            return sel
+        poses = self.poses("neutral_to_pose")
+        return replace(sel, kind="neutral_to_pose", pose=sel.pose if sel.pose in poses else poses[0],
+                       pose_b=sel.pose_b if sel.pose_b in poses else None)
+
+
+@dataclass(frozen=True)
+class Loaded:
+    """The load job's result: the session, ready to predict."""
+
+    session: Session

@@ -6,6 +6,8 @@ magnitude. Updates set points/scalars in place (no actor rebuild) so scrubbing s
 """
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 import pyvista as pv
 from pyvistaqt import QtInteractor
@@ -15,12 +17,14 @@ from PySide6.QtWidgets import QHBoxLayout, QWidget
 
 from latent_model.corpus.sdf import vertex_normals
 
-from explorer.session import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
+from explorer.results import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
+from explorer.session import Session
 
 VIEW_NAMES = ("source", "prediction", "prediction_b", "truth")
 BACKGROUND = "#2b2f36"
 SKIN = "#d9c3b0"
 TRUTH = "#b7cbd9"
+TITLE_PX = 12  # view titles: a fixed pixel size (pyvista's corner annotations shrink with the view)
 
 
 def _poly(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> pv.PolyData:
@@ -72,18 +76,39 @@ class ViewPanel(QWidget):
         self.wireframe = False
         self.state: ViewState | None = None
         self._camera_set = False
+        self._n_views = 3  # visible views (titles wrap to their width)
+        self._raw_titles: dict[str, str] = {}
 
     # -------------------------------------------------------------- drawing
     def _sync_others(self, *args) -> None:
         for p in self.plotters.values():
             p.update()
 
-    def _title(self, name: str, text: str) -> None:
-        p = self.plotters[name]
+    def _title(self, name: str, text: str) -> bool:
+        """Set a view's title, wrapped to the view's width; True when what it shows changed."""
+        self._raw_titles[name] = text
+        chars = max(12, int(0.95 * self.width() / self._n_views / (TITLE_PX * 0.54)))  # ~6.5 px a glyph
+        wrapped = "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
         if name in self._texts:
-            self._texts[name].SetText(2, text)  # upper left
-        else:
-            self._texts[name] = p.add_text(text, position="upper_left", font_size=8, color="white", name=f"title_{name}")
+            if self._texts[name].input == wrapped:
+                return False
+            self._texts[name].input = wrapped
+            return True
+        t = pv.Text(wrapped, position=(0.03, 0.985))
+        t.GetPositionCoordinate().SetCoordinateSystemToNormalizedViewport()
+        t.prop.font_size = TITLE_PX
+        t.prop.color = "white"
+        t.prop.justification_horizontal = "left"
+        t.prop.justification_vertical = "top"
+        self.plotters[name].add_actor(t, reset_camera=False, name=f"title_{name}", pickable=False, render=False)
+        self._texts[name] = t
+        return True
+
+    def resizeEvent(self, e) -> None:
+        super().resizeEvent(e)
+        changed = {n for n, text in list(self._raw_titles.items()) if n in self._texts and self._title(n, text)}
+        if changed:
+            self.schedule(changed)
 
     def _build(self, state: ViewState, colour: str) -> None:
         """(Re)create the actors: new topology, colour mode or compare layout."""
@@ -95,6 +120,7 @@ class ViewPanel(QWidget):
                 p.remove_scalar_bar(title)
             p.clear_actors()
         self._texts.clear()
+        self._n_views = 4 if compare else 3
         normals = vertex_normals(state.source, state.faces)
         self._polys = {n: _poly(state.source, state.faces, normals) for n in VIEW_NAMES}
         self._actors = {}
@@ -108,7 +134,8 @@ class ViewPanel(QWidget):
                 cmap="YlOrRd" if colour == "error" else "YlGnBu", style=style, show_scalar_bar=False)
         bar = dict(title=bar_title, n_labels=5, fmt="%.0f", vertical=False, position_x=0.15, position_y=0.03,
                    width=0.7, height=0.06, color="white", title_font_size=12, label_font_size=11)
-        self.plotters["prediction"].add_scalar_bar(mapper=self._actors["prediction"].mapper, **bar)
+        sb = self.plotters["prediction"].add_scalar_bar(mapper=self._actors["prediction"].mapper, **bar)
+        sb.SetTextPositionToPrecedeScalarBar()  # tick labels under the bar, the title over it: they never overlap
         self.plotters["prediction_b"].setVisible(compare)
         self._faces = state.faces
         self._mode = (colour, compare, len(state.source), self.wireframe)
@@ -116,10 +143,13 @@ class ViewPanel(QWidget):
             self.set_view("front", render=False)
             self._camera_set = True
 
-    def show_state(self, state: ViewState, colour: str = "error") -> None:
+    def bind(self, session: Session) -> None:
+        """Draw each prediction the session shows."""
+        session.events.state.connect(self.show_state)
+
+    def show_state(self, state: ViewState) -> None:
         """Put a prediction on screen (in place when the topology and layout are unchanged)."""
-        if colour == "error" and state.truth is None:
-            colour = "displacement"  # no truth: colour by displacement
+        colour = state.colour
         compare = len(state.predictions) > 1
         rebuilt = False
         if (self._faces is None or self._faces is not state.faces and not np.array_equal(self._faces, state.faces)
@@ -133,15 +163,17 @@ class ViewPanel(QWidget):
         if not rebuilt and (prev is None or prev.source is not state.source or prev.target != state.target):
             _set_geometry(self._polys["source"], state.source, vertex_normals(state.source, state.faces))
             dirty.add("source")
-        self._title("source", src_title)
-        if rebuilt or prev is None or prev.truth is not state.truth or prev.truth_title != state.truth_title:
+        if self._title("source", src_title):
+            dirty.add("source")
+        if rebuilt or prev is None or prev.truth is not state.truth:
             truth_actor = self._actors["truth"]
             if state.truth is not None:
                 _set_geometry(self._polys["truth"], state.truth, vertex_normals(state.truth, state.faces))
                 truth_actor.visibility = True
             else:
                 truth_actor.visibility = False
-            self._title("truth", state.truth_title)
+            dirty.add("truth")
+        if self._title("truth", state.truth_title):
             dirty.add("truth")
         if rebuilt:
             dirty.add("source")

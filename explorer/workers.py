@@ -1,9 +1,11 @@
 """Heavy work off the UI thread: one model thread runs predictions (coalesced: only the latest
-selection waiting) ahead of background jobs (loading, noise floor, heatmaps), which are
-generators stepping with progress so predictions can run between their steps.
+selection waiting) ahead of background jobs (loading, noise floor, heatmaps, opening, exporting),
+which are generators stepping with progress so predictions can run between their steps.
 
-The session is touched only from this thread (it is not thread-safe); results come back to the
-UI thread through Qt signals (queued across threads).
+A job is keyed by the type of result it returns (`Loaded`, `HeatmapData`, `NoiseFloor`,
+`MeshOpened`, `Exported`): that type is what `cancel` names and what a `Failed` reports, so the
+window dispatches every outcome by type, never by a job's name. Results cross to the UI thread
+through one Qt signal (queued across threads); the session's compute side is touched only here.
 """
 from __future__ import annotations
 
@@ -11,11 +13,14 @@ import threading
 import time
 import traceback
 from collections import deque
-from typing import Any, Callable, Iterator
+from dataclasses import dataclass
+from typing import Callable, Iterator
 
 from PySide6.QtCore import QObject, Signal
 
-from explorer.session import Coalescer, Selection
+from explorer.coalescer import Coalescer
+from explorer.results import Failed, Predicted
+from explorer.selection import Selection
 
 # A job: a callable returning a generator of (message, fraction|None) that returns its result.
 Job = Callable[[], Iterator[tuple[str, float | None]]]
@@ -32,22 +37,27 @@ def describe_error(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
-class ModelWorker(QObject):
-    """predicted(ViewState, request time) | prediction_failed(message) | job_progress(name, message, fraction)
-    | job_done(name, result) | job_failed(name, message)."""
+@dataclass(eq=False)  # compared by identity: two jobs of one kind are two jobs
+class _Queued:
+    kind: type
+    start: Job
+    subject: str | None
+    steps: Iterator | None = None
 
-    predicted = Signal(object, float)
-    prediction_failed = Signal(str)
-    job_progress = Signal(str, str, object)
-    job_done = Signal(str, object)
-    job_failed = Signal(str, str)
+
+class ModelWorker(QObject):
+    """result(Predicted | Loaded | HeatmapData | NoiseFloor | MeshOpened | Exported | Failed) and
+    progress(message, fraction or None)."""
+
+    result = Signal(object)
+    progress = Signal(str, object)
 
     def __init__(self) -> None:
         super().__init__()
-        self.session = None  # set by the load job
+        self.session = None  # set by the window when the load job's result arrives
         self.coalescer: Coalescer[tuple[Selection, float]] = Coalescer()
         self._now: tuple[Selection, float] | None = None
-        self._jobs: deque[tuple[str, Iterator]] = deque()
+        self._jobs: deque[_Queued] = deque()
         self._cond = threading.Condition()
         self._stop = False
         self._thread = threading.Thread(target=self._run, name="lrr-model-worker", daemon=True)
@@ -62,14 +72,16 @@ class ModelWorker(QObject):
                 self._now = item
                 self._cond.notify()
 
-    def submit(self, name: str, job: Job) -> None:
+    def submit(self, kind: type, job: Job, subject: str | None = None) -> None:
+        """Queue a job that returns a `kind` (its Failed names `kind` and `subject`)."""
         with self._cond:
-            self._jobs.append((name, job))
+            self._jobs.append(_Queued(kind, job, subject))
             self._cond.notify()
 
-    def cancel_jobs(self, name: str) -> None:
+    def cancel(self, kind: type) -> None:
+        """Drop the queued jobs of a kind (one mid-step finishes that step and is dropped)."""
         with self._cond:
-            self._jobs = deque(j for j in self._jobs if j[0] != name)
+            self._jobs = deque(j for j in self._jobs if j.kind is not kind)
 
     def stop(self) -> None:
         with self._cond:
@@ -106,35 +118,41 @@ class ModelWorker(QObject):
             try:
                 if self.session is None:
                     raise RuntimeError("the model is still loading")
-                state = self.session.compute(sel)
-                self.predicted.emit(state, t0)
+                self.result.emit(Predicted(self.session.compute(sel), t0))
             except Exception as e:  # noqa: BLE001 - shown in a dialog; the window survives
                 if not isinstance(e, USER_ERRORS):
                     traceback.print_exc()
-                self.prediction_failed.emit(describe_error(e))
+                self.result.emit(Failed(Predicted, describe_error(e)))
             ok, nxt = self.coalescer.take()
             item = nxt if ok else None
 
-    def _step(self, job: tuple[str, Any]) -> None:
-        name, it = job
+    def _step(self, job: _Queued) -> None:
         try:
-            if callable(it):  # not started yet
-                it = it()
-                with self._cond:
-                    if self._jobs and self._jobs[0][0] == name:
-                        self._jobs[0] = (name, it)
-            msg, frac = next(it)
-            self.job_progress.emit(name, msg, frac)
+            if job.steps is None:  # not started yet
+                job.steps = job.start()
+            msg, frac = next(job.steps)
+            if self._queued(job):
+                self.progress.emit(msg, frac)
         except StopIteration as s:
-            self._pop(name)
-            self.job_done.emit(name, s.value)
+            if self._pop(job):  # a cancelled job's result is dropped
+                ok = isinstance(s.value, job.kind)
+                self.result.emit(s.value if ok else Failed(
+                    job.kind, f"internal error: a {job.kind.__name__} job returned {type(s.value).__name__}", job.subject))
         except Exception as e:  # noqa: BLE001
             if not isinstance(e, USER_ERRORS):
                 traceback.print_exc()
-            self._pop(name)
-            self.job_failed.emit(name, describe_error(e))
+            if self._pop(job):
+                self.result.emit(Failed(job.kind, describe_error(e), job.subject))
 
-    def _pop(self, name: str) -> None:
+    def _queued(self, job: _Queued) -> bool:
         with self._cond:
-            if self._jobs and self._jobs[0][0] == name:
-                self._jobs.popleft()
+            return any(j is job for j in self._jobs)
+
+    def _pop(self, job: _Queued) -> bool:
+        """Remove this job (not another of its kind); False if it was cancelled meanwhile."""
+        with self._cond:
+            for j in self._jobs:
+                if j is job:
+                    self._jobs.remove(j)
+                    return True
+            return False

@@ -2,6 +2,7 @@
 
 Skips with a reason when PySide6/pyvistaqt/pytest-qt are missing, when there is no DISPLAY, or when
 the shipped model is missing."""
+import json
 import os
 import subprocess
 import sys
@@ -24,7 +25,7 @@ if not ShippedPaths.at().checkpoint.exists() or not ShippedPaths.at().bank.exist
 
 from PySide6.QtCore import QPoint, Qt  # noqa: E402
 
-from explorer.session import Selection  # noqa: E402
+from explorer.selection import Selection  # noqa: E402
 
 TIMEOUT = 120_000  # ms; the first load regenerates ground truth (and builds anny's cache on a fresh machine)
 BACKGROUND = np.array([0x2B, 0x2F, 0x36])
@@ -41,8 +42,7 @@ def window(qapp):
     specs, _ = load_identity_specs(ShippedPaths.at().identities)
     target = next(s.id for s in specs if s.split == "test")
     w = MainWindow(Selection(target=target, pose="elbowBentLf", strategy="nearest_identity_delta"))
-    w.resize(1500, 850)
-    w.show()
+    w.show()  # at its default size: the tests run on what a user gets
     yield w
     w.close()
 
@@ -60,6 +60,30 @@ def test_window_opens_with_three_views_and_heatmaps(window, qtbot):
     assert st.truth is not None and st.prediction.error_mm is not None
     assert "last update" in window.update_label.text()
     assert window.heatmaps.data.target == st.target
+
+
+def test_window_fits_1366x768_by_default(window, qtbot):
+    from explorer.main_window import fit_size
+
+    qtbot.waitExposed(window)
+    _wait_state(qtbot, window, lambda s: True)
+    frame = window.frameGeometry()
+    assert frame.width() <= 1366 and frame.height() <= 768, f"default window {frame.width()}x{frame.height()}"
+    hint = window.minimumSizeHint()
+    assert hint.width() <= 1366 and hint.height() <= 768
+    # nothing cut off at that size: the controls fit their panel, every view keeps a usable width
+    scroll = window.controls.parentWidget().parentWidget()
+    assert scroll.viewport().width() >= window.controls.minimumSizeHint().width()
+    assert all(p.width() >= 200 for n, p in window.views.plotters.items() if p.isVisible())
+    assert window.heatmaps.width() >= 240
+    # a size asked for is shrunk to the screen's free area less the frame
+    assert fit_size((1366, 768), (1280, 720), (0, 30)) == (1280, 690)
+    assert fit_size((1000, 600), (1920, 1080), (4, 30)) == (1000, 600)
+    avail = window.screen().availableGeometry()
+    window.fit_to_screen(avail.width() + 500, avail.height() + 500)
+    assert window.width() <= avail.width() and window.height() <= avail.height()
+    window.fit_to_screen()
+    assert (window.width(), window.height()) == (1366, 768)
 
 
 def test_each_slider_changes_the_prediction(window, qtbot):
@@ -144,6 +168,56 @@ def test_bad_file_shows_error_and_window_survives(window, qtbot, tmp_path):
     window.controls.magnitude.setValue(130)  # still alive and predicting
     _wait_state(qtbot, window, lambda s: s.selection.magnitude == pytest.approx(1.3))
     window.controls.magnitude.setValue(100)
+
+
+def test_displacement_box_shows_an_opened_meshs_colouring(window, qtbot, tmp_path):
+    """An opened mesh has no truth and is coloured by displacement: the box says so, fixed."""
+    import trimesh
+
+    c, s = window.controls, window.session
+    held = _wait_state(qtbot, window, lambda st: st.truth is not None).target
+    assert not c.displacement.isChecked() and c.displacement.isEnabled()
+    f = tmp_path / "my_body.ply"
+    trimesh.Trimesh(s.truth.state(held, None, "neutral"), s.truth.faces, process=False).export(f)
+    window.open_path(f)
+    st = _wait_state(qtbot, window, lambda st: s.is_mesh(st.target))
+    assert st.truth is None and st.colour == "displacement"
+    assert c.displacement.isChecked() and not c.displacement.isEnabled()
+    assert "ground truth" in c.displacement.toolTip()
+    assert "displacement" in next(iter(window.views.plotters["prediction"].scalar_bars.keys()))
+    c.toggle_displacement()  # the D shortcut cannot uncheck what is shown
+    assert c.displacement.isChecked()
+    c.target.setCurrentText(held)  # back to a held-out body: coloured by error, the box free again
+    st = _wait_state(qtbot, window, lambda st: st.target == held)
+    assert st.colour == "error" and not c.displacement.isChecked() and c.displacement.isEnabled()
+    assert "error" in next(iter(window.views.plotters["prediction"].scalar_bars.keys()))
+
+
+def _run_app(args: list[str], timeout: float = 200) -> subprocess.CompletedProcess:
+    """`explorer.app.main(args)` in a subprocess, under this X server."""
+    code = "import sys; from explorer.app import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+
+
+def test_screenshot_with_a_bad_mesh_or_session_fails_with_the_error(tmp_path):
+    bad = tmp_path / "broken.obj"
+    bad.write_text("v 0 0 0\nv nan 1 0\nv 0 1 1\nf 1 2 3\n")
+    junk = tmp_path / "junk.json"
+    junk.write_text("{not json")
+    out = tmp_path / "out.png"
+    for args, named in ((["--mesh", str(bad)], "broken.obj"), (["--mesh", str(tmp_path / "missing.ply")], "missing.ply"),
+                        (["--session", str(junk)], "junk.json")):
+        r = _run_app([*args, "--screenshot", str(out)])
+        assert r.returncode != 0, f"{args}: exit 0\n{r.stderr[-1000:]}"
+        assert "lrr-explorer: error:" in r.stderr and named in r.stderr, r.stderr[-1000:]
+        assert not out.exists()
+    # a session whose mesh breaks once the window is up (the model loaded): the same
+    sess = tmp_path / "s.json"
+    sess.write_text(json.dumps({"format": 1, "selection": {"target": "broken"}, "meshes": {"broken": str(bad)}}))
+    r = _run_app(["--session", str(sess), "--screenshot", str(out), "--timeout", "150"])
+    assert r.returncode != 0 and "lrr-explorer: error:" in r.stderr and "broken.obj" in r.stderr, r.stderr[-1000:]
+    assert not out.exists()
 
 
 def _view_spans(img: np.ndarray) -> list[tuple[int, int]]:

@@ -1,13 +1,21 @@
 """The explorer's session model without a display: predictions, sliders, strategies, compare,
-heatmaps, noise floor, opened meshes, session JSON and the coalescing of updates."""
+heatmaps, noise floor, opened meshes, session JSON, the coalescing of updates, and the window
+state it owns (typed results in, events out)."""
 import json
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from explorer.session import (Coalescer, Selection, Session, SessionError, read_session, save_session)
+from explorer import session as session_module
+from explorer.coalescer import Coalescer
+from explorer.events import Event
+from explorer.results import (Exported, Failed, HeatmapData, MeshOpened, NoiseFloor, PairRef, Predicted, Prediction,
+                              ViewState)
+from explorer.selection import Selection, SessionError, read_session, save_session
+from explorer.session import Session
 from latent_model.shipped import ShippedPaths
 
 needs_model = pytest.mark.skipif(not ShippedPaths.at().checkpoint.exists() or not ShippedPaths.at().bank.exists(),
@@ -61,6 +69,143 @@ def test_selection_json_round_trip(tmp_path):
         read_session(bad)
     with pytest.raises(SessionError, match="no such"):
         read_session(tmp_path / "none.json")
+
+
+def test_selection_bounds_are_the_model_packages():
+    """The explorer checks sliders against latent_model.types' ranges (one place for the bounds)."""
+    from latent_model.types import BLEND_RANGE, MAGNITUDE_RANGE
+
+    assert Selection(magnitude=MAGNITUDE_RANGE[1], blend=BLEND_RANGE[1]).checked().magnitude == MAGNITUDE_RANGE[1]
+    for bad in (dict(magnitude=MAGNITUDE_RANGE[1] + 0.01), dict(magnitude=-0.1), dict(blend=BLEND_RANGE[1] + 0.1),
+                dict(magnitude=float("nan")), dict(colour="rainbow"), dict(strategy="best"), dict(kind="pose_to_pose")):
+        with pytest.raises(SessionError):
+            Selection(**bad).checked()
+    assert Selection(strategy="nearest").checked().strategy == "nearest_identity_delta"
+
+
+# ----------------------------------------------------------------------------- window state, no model
+def _state(target="id008", conditioning="id003", truth=True, **sel) -> ViewState:
+    v = np.zeros((4, 3), np.float32)
+    pred = Prediction("nearest_identity_delta", conditioning, v, np.zeros(4) if truth else None, np.zeros(4))
+    return ViewState(Selection(target=target, **sel), PairRef(target, "neutral_to_pose", "elbowBentLf", None, None, None),
+                     np.zeros((2, 3), np.int64), v, v if truth else None, "truth", [pred])
+
+
+def _heatmaps(target="id008", pose="elbowBentLf", conditioning="id003") -> HeatmapData:
+    return HeatmapData([target], np.zeros((1, 1)), [], np.zeros((0, 0)), pose, "neutral_to_pose", target, conditioning)
+
+
+def _recorder(s: Session) -> list:
+    seen = []
+    for name in ("selection", "state", "heatmaps_wanted", "heatmaps", "noise", "mesh_opened", "exported", "failed"):
+        getattr(s.events, name).connect(lambda v, n=name: seen.append((n, v)))
+    return seen
+
+
+def test_session_model_is_qt_free():
+    """The model the views subscribe to imports no Qt (it runs headless, in tests and scripts)."""
+    import subprocess
+    import sys
+
+    code = "import sys, explorer.session; print([m for m in sys.modules if m.startswith(('PySide6', 'pyvista'))])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out
+
+
+def test_event_calls_subscribers_in_order_and_disconnects():
+    e, got = Event("x"), []
+    a = e.connect(lambda v: got.append(("a", v)))
+    e.connect(lambda v: got.append(("b", v)))
+    e.emit(1)
+    e.disconnect(a)
+    e.emit(2)
+    assert got == [("a", 1), ("b", 1), ("b", 2)]
+
+
+def test_results_dispatch_by_type_and_notify_subscribers():
+    s = Session(transfer=None)
+    seen = _recorder(s)
+    st = _state()
+    s.apply(Predicted(st, 0.0))
+    assert s.state is st and s.heatmaps_pending
+    assert [n for n, _ in seen] == ["state", "heatmaps_wanted"] and seen[0][1] is st
+    assert seen[1][1].key == ("id008", "neutral_to_pose", "elbowBentLf", "id003")
+    seen.clear()
+    s.apply(Predicted(_state(magnitude=1.5), 0.0))  # same heatmaps: they are not asked for again
+    assert [n for n, _ in seen] == ["state"]
+    seen.clear()
+    s.apply(_heatmaps(pose="kneeBentLf"))  # an overtaken job's heatmaps: ignored
+    assert s.heatmaps_pending and seen == []
+    h = _heatmaps()
+    s.apply(h)
+    assert not s.heatmaps_pending and s.heatmap_data is h and seen == [("heatmaps", h)]
+    seen.clear()
+    s.apply(Exported(Path("/tmp/x.obj")))
+    assert seen == [("exported", Exported(Path("/tmp/x.obj")))]
+    with pytest.raises(TypeError, match="not a session result"):
+        s.apply("heatmaps")  # a job name is not a result
+
+
+def test_failures_reset_what_was_pending():
+    s = Session(transfer=None)
+    seen = _recorder(s)
+    s.apply(Predicted(_state(), 0.0))
+    s.apply(Failed(HeatmapData, "boom"))
+    assert not s.heatmaps_pending and seen[-1] == ("failed", Failed(HeatmapData, "boom"))
+    seen.clear()
+    s.apply(Predicted(_state(magnitude=1.2), 0.0))  # the next prediction asks for them again
+    assert [n for n, _ in seen] == ["state", "heatmaps_wanted"]
+    assert s.begin_noise("id008") and not s.begin_noise("id008")  # in flight: not twice
+    s.apply(Failed(NoiseFloor, "no"))
+    assert s.noise_for is None and s.begin_noise("id008")
+    nf = NoiseFloor("id008", ["kneeBentLf"], [3.0], [1.0])
+    s.apply(NoiseFloor("id014"))  # overtaken: another target's floor is being computed
+    assert s.noise is None
+    s.apply(nf)
+    assert s.noise is nf and s.noise_for is None and not s.begin_noise("id008")
+
+
+def test_compute_derives_the_pair_once(monkeypatch):
+    """Session.compute derives a selection's pair (source, goal) once per call."""
+
+    class Truth:
+        faces = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+        body_faces = faces
+
+        def state(self, identity, pose, variant):
+            return np.eye(4, 3, dtype=np.float32) * (2.0 if pose else 1.0)
+
+    class Out:
+        def __init__(self, v):
+            self.vertices, self.gate, self.signal, self.label = v, 1.0, 9.0, "mean"
+
+    class Transfer:
+        class bank:
+            keys = ["id000/neutral"]
+
+            @staticmethod
+            def poses(kind):
+                return ["elbowBentLf", "kneeBentLf"] if kind == "neutral_to_pose" else []
+
+        def prepare(self, v, f, sdf_faces=None):
+            from types import SimpleNamespace
+
+            return SimpleNamespace(vertices=np.asarray(v, np.float32), faces=f)
+
+        def predict_detail(self, m, *a):
+            return Out(m.vertices + 0.01)
+
+    calls = []
+    real = session_module.pair_states
+    monkeypatch.setattr(session_module, "pair_states", lambda *a: calls.append(a) or real(*a))
+    s = Session(Transfer(), Truth(), ["id008"])
+    st = s.compute(Selection(target="id008", pose="kneeBentLf"))
+    assert calls == [("neutral_to_pose", "kneeBentLf", None)]
+    assert st.pair.source == (None, "neutral") and st.pair.goal == ("kneeBentLf", "skinning_plus_blendshape")
+    assert np.allclose(st.truth, Truth().state("id008", "kneeBentLf", "x"))
+    calls.clear()
+    s.compute(Selection(target="id008", pose="kneeBentLf", pose_b="elbowBentLf", blend=0.5))
+    assert len(calls) == 2  # pose A's pair and pose B's, once each
 
 
 @pytest.fixture(scope="module")
@@ -144,8 +289,34 @@ def test_shipped_model_was_trained_on_the_current_rig():
     records the digest of the corpus it was trained on. A rig fix (a new generator version)
     without a retrained model would show the model against a truth it never saw."""
     from latent_model.config import corpus_preset
-    from latent_model.train.checkpoint import read_metadata
+    from latent_model.checkpoint import read_metadata
 
     meta = read_metadata(ShippedPaths.at().checkpoint)
     specs = json.loads(ShippedPaths.at().identities.read_text())
     assert json.loads(meta["extra"])["corpus_digest"] == corpus_preset(specs["preset"]).digest()
+
+
+@needs_model
+def test_opened_mesh_becomes_the_selection_and_restore_waits_for_its_mesh(session, tmp_path):
+    import trimesh
+
+    t = session.test_ids[0]
+    f = tmp_path / "body.ply"
+    trimesh.Trimesh(session.truth.state(t, None, "neutral"), session.truth.faces, process=False).export(f)
+    seen = _recorder(session)
+    session.select(Selection(target=t, kind="skinning_to_skinning_plus_blendshape", pose="kneeBentLf", magnitude=1.4))
+    name = session.open_mesh(f)
+    session.apply(MeshOpened(name, str(f), "summary"))
+    sel = seen[-1][1]
+    assert [n for n, _ in seen[-2:]] == ["mesh_opened", "selection"] and session.mesh_paths[name] == str(f)
+    assert sel.target == name and sel.kind == "neutral_to_pose" and sel.magnitude == 1.4  # an opened mesh is a source
+    # a saved session whose mesh is not open yet: its selection waits for the mesh
+    seen.clear()
+    want = Selection(target="restored", pose="kneeBentLf", compare=True)
+    assert session.restore(want, {"restored": str(f)}) == {"restored": str(f)} and seen == []
+    session.apply(Failed(MeshOpened, "broken", subject=str(f)))  # it failed: keep the current target
+    assert session.pending_selection is None and [n for n, _ in seen] == ["selection", "failed"]
+    assert seen[0][1].target == name and seen[0][1].compare
+    seen.clear()
+    assert session.restore(Selection(target=t), {name: str(f)}) == {}  # everything open: selected at once
+    assert seen == [("selection", Selection(target=t))]

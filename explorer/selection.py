@@ -1,0 +1,80 @@
+"""What the user chose (`Selection`), its validation, and the session file (JSON) that stores it."""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+
+from latent_model.atomic import atomic_write_json
+from latent_model.types import (COLOURS, PAIR_KINDS, ColourBy, PairKind, Strategy, check_blend, check_choice,
+                                 check_magnitude, parse_strategy)
+
+SESSION_FORMAT = 1
+
+
+class SessionError(ValueError):
+    """A selection or session file the user gave cannot be used (message says why and what to do)."""
+
+
+@dataclass
+class Selection:
+    """Everything the user chose: the state a session file stores."""
+
+    target: str = "id008"
+    kind: PairKind = "neutral_to_pose"
+    pose: str = "elbowBentLf"
+    pose_b: str | None = None
+    blend: float = 0.0  # 0 = pose A, 1 = pose B (BLEND_RANGE)
+    magnitude: float = 1.0  # scales r_delta (MAGNITUDE_RANGE)
+    # mean by default: on held-out bodies it transfers better than a single identity's delta on
+    # every broad body pose (README Results)
+    strategy: Strategy = "mean_pose_delta"
+    colour: ColourBy = "error"  # the user's choice; an opened mesh has no truth and shows displacement
+    compare: bool = False
+    wireframe: bool = False
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def checked(self) -> "Selection":
+        """This selection with its numbers as floats and every bound and name checked (SessionError)."""
+        try:
+            return replace(self, blend=check_blend(self.blend), magnitude=check_magnitude(self.magnitude),
+                           strategy=parse_strategy(self.strategy), colour=check_choice("colour", self.colour, COLOURS),
+                           kind=check_choice("pair kind", self.kind, PAIR_KINDS))
+        except ValueError as e:
+            raise SessionError(str(e)) from None
+
+    @staticmethod
+    def from_dict(d: dict) -> "Selection":
+        if not isinstance(d, dict):
+            raise SessionError("a selection must be a JSON object")
+        names = {f.name for f in fields(Selection)}
+        unknown = set(d) - names
+        if unknown:
+            raise SessionError(f"unknown selection fields {sorted(unknown)}; valid: {sorted(names)}")
+        return Selection(**d).checked()
+
+
+def save_session(path: str | Path, sel: Selection, meshes: dict[str, str] | None = None) -> Path:
+    """Write the selection (and the paths of opened meshes) as JSON, atomically."""
+    return atomic_write_json(path, {"format": SESSION_FORMAT, "selection": sel.to_dict(), "meshes": meshes or {}})
+
+
+def read_session(path: str | Path) -> tuple[Selection, dict[str, str]]:
+    """(selection, {mesh name: file path}) of a session file."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SessionError(f"{path}: no such session file") from None
+    except (OSError, ValueError) as e:
+        raise SessionError(f"{path}: not a readable session JSON ({e})") from None
+    if not isinstance(d, dict) or d.get("format") != SESSION_FORMAT:
+        raise SessionError(f"{path}: not an explorer session (format {SESSION_FORMAT} expected)")
+    try:
+        return Selection.from_dict(d["selection"]), dict(d.get("meshes", {}))
+    except SessionError as e:
+        raise SessionError(f"{path}: {e}") from None
+    except (KeyError, TypeError) as e:
+        raise SessionError(f"{path}: broken session file ({e})") from None
