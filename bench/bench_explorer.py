@@ -1,6 +1,6 @@
 """Benchmark the explorer's scrubbing: slider value change -> new prediction on screen (request,
 coalescing worker, Transfer.predict, points/scalars set in place, VTK render), median over
-several slider moves; and the vertex-decoder part of each (Transfer.predict, timed by the session
+several slider moves; and the prediction part of each (Transfer.predict, timed by the session
 in the app's model thread: only that thread runs torch, as in the app — a second thread that
 ran torch would give OpenMP more threads than cores and throttle its spin-waiting).
 Targets: <= 120 ms and <= 40 ms (software rendering under Xvfb). Prints medians; never asserts.
@@ -69,7 +69,7 @@ def main() -> None:
         wait(lambda: len(win.update_ms) > n)  # the Qt paint that renders the prediction view
         lat.append((time.perf_counter() - t) * 1000)
         model.append(win.state.seconds * 1000)
-        dec.append(win.state.seconds_decoder * 1000)
+        dec.append(win.state.seconds_predict * 1000)
         draw.append(win.draw_ms[-1])
     # a fast scrub: 50 values as quickly as Qt delivers them
     n = len(win.update_ms)
@@ -83,7 +83,7 @@ def main() -> None:
           f"(min {min(lat):.0f}, max {max(lat):.0f}; {args.moves} moves; target <= 120 ms)")
     print(f"  of which: model thread (Session.compute) median {statistics.median(model):.0f} ms, "
           f"points set in the views median {statistics.median(draw):.0f} ms, then one render at the paint")
-    print(f"vertex decoder (Transfer.predict in the model thread, as the app runs it): median "
+    print(f"Transfer.predict in the model thread, as the app runs it: median "
           f"{statistics.median(dec):.0f} ms (target <= 40 ms)")
     print(f"fast scrub of 50 slider steps: {scrub:.2f} s, {len(win.update_ms) - n} predictions drawn "
           f"(the rest coalesced away)")

@@ -52,6 +52,7 @@ def main() -> None:
             um = meshio.load_mesh(path)
             t1 = time.perf_counter()
             prepared = transfer.prepare(um.vertices, um.faces, sdf_faces=um.sdf_faces, seed=r)
+            prepared.mu  # the latent is derived on first read: encode it here, as the nearest strategy will
             t2 = time.perf_counter()
             transfer.predict(prepared, "elbowBentLf", "nearest")
             t3 = time.perf_counter()

@@ -23,7 +23,7 @@ def main() -> None:
     args = ap.parse_args()
     from latent_model.encoding import encode_states
     from latent_model.config import default_corpus_dir
-    from latent_model.corpus.pairs import PAIR_KINDS
+    from latent_model.types import PAIR_KINDS
     from latent_model.corpus.poses import get_pose
     from latent_model.corpus.store import Corpus
     from latent_model.shipped import ShippedPaths

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from latent_model.runtime import keep_freed_memory, short_thread_spin  # noqa: E402
+from latent_model.types import MAGNITUDE_RANGE  # noqa: E402
 
 # Predictions run in a worker thread while the UI thread renders: OpenMP's default long spin-wait
 # makes idle torch threads compete with rendering on a small CPU. Before torch is imported.
@@ -28,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--pose", default="elbowBentLf", help="pose A (default elbowBentLf)")
     ap.add_argument("--pose-b", help="pose B to blend toward")
     ap.add_argument("--blend", type=float, default=0.0, help="blend A -> B in [0, 1]")
-    ap.add_argument("--magnitude", type=float, default=1.0, help="delta magnitude in [0, 2]")
+    ap.add_argument("--magnitude", type=float, default=1.0, help="delta magnitude in [%g, %g]" % MAGNITUDE_RANGE)
     ap.add_argument("--strategy", default="mean", help="mean (default), nearest or identity:<id>")
     ap.add_argument("--displacement", action="store_true", help="colour the prediction by displacement, not error")
     ap.add_argument("--compare", action="store_true", help="compare mean vs nearest side by side")

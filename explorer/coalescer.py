@@ -12,7 +12,7 @@ class Coalescer(Generic[T]):
     scrubbing a slider never queues work up. Thread-safe.
 
     submit(x) -> True when the caller should start work on x now (nothing in flight);
-    done() -> the latest request that arrived meanwhile (start it now) or None (idle)."""
+    take() -> (True, the latest request that arrived meanwhile: start it now) or (False, None): idle."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -39,10 +39,6 @@ class Coalescer(Generic[T]):
                 return True, item
             self._busy = False
             return False, None
-
-    def done(self) -> T | None:
-        ok, item = self.take()
-        return item if ok else None
 
     @property
     def busy(self) -> bool:

@@ -8,7 +8,9 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
                                QSlider, QVBoxLayout, QWidget)
 
-from explorer.results import ViewState
+from latent_model.types import BLEND_RANGE, MAGNITUDE_RANGE
+
+from explorer.results import STRATEGY_LABELS, ViewState
 from explorer.selection import Selection
 from explorer.session import Session
 
@@ -16,8 +18,9 @@ NONE_POSE = "(none)"
 DISPLACEMENT_TIP = "Colour the prediction by how far each vertex moved from the source, not by its error against the truth"
 NO_TRUTH_TIP = ("An opened mesh has no ground truth, so its prediction is coloured by displacement from the source "
                 "(choose a held-out identity to colour by error)")
-STRATEGY_ITEMS = (("mean pose delta", "mean_pose_delta"), ("nearest identity delta", "nearest_identity_delta"),
+STRATEGY_ITEMS = (*((STRATEGY_LABELS[k], k) for k in ("mean_pose_delta", "nearest_identity_delta")),
                   ("chosen identity", "identity"))
+SLIDER_STEPS = 100  # slider ticks per unit of magnitude / blend
 
 
 class Controls(QWidget):
@@ -48,11 +51,11 @@ class Controls(QWidget):
         form.addRow("Conditioning", self.strategy)
         form.addRow("Identity", self.identity)
         self.magnitude = QSlider(Qt.Orientation.Horizontal, box)
-        self.magnitude.setRange(0, 200)
-        self.magnitude.setValue(100)
+        self.magnitude.setRange(*(round(x * SLIDER_STEPS) for x in MAGNITUDE_RANGE))
+        self.magnitude.setValue(SLIDER_STEPS)
         self.magnitude_label = QLabel("1.00x", box)
         self.blend = QSlider(Qt.Orientation.Horizontal, box)
-        self.blend.setRange(0, 100)
+        self.blend.setRange(*(round(x * SLIDER_STEPS) for x in BLEND_RANGE))
         self.blend_label = QLabel("0.00", box)
         for s in (self.magnitude, self.blend):
             s.setSingleStep(1)
@@ -181,8 +184,8 @@ class Controls(QWidget):
             strat = f"identity:{self.identity.currentText()}"
         pb = self.pose_b.currentText()
         return Selection(target=self.target.currentText(), kind=self.kind.currentText(), pose=self.pose.currentText(),
-                         pose_b=None if pb in ("", NONE_POSE) else pb, blend=self.blend.value() / 100.0,
-                         magnitude=self.magnitude.value() / 100.0, strategy=strat,
+                         pose_b=None if pb in ("", NONE_POSE) else pb, blend=self.blend.value() / SLIDER_STEPS,
+                         magnitude=self.magnitude.value() / SLIDER_STEPS, strategy=strat,
                          colour=self._colour,
                          compare=self.compare.isChecked(), wireframe=self.wireframe.isChecked())
 
@@ -201,9 +204,9 @@ class Controls(QWidget):
                 self.strategy.setCurrentIndex(2)
                 self.identity.setCurrentText(sel.strategy.split(":", 1)[1])
             else:
-                self.strategy.setCurrentIndex(0 if sel.strategy in ("mean", "mean_pose_delta") else 1)
-            self.magnitude.setValue(round(sel.magnitude * 100))
-            self.blend.setValue(round(sel.blend * 100))
+                self.strategy.setCurrentIndex(0 if sel.strategy == "mean_pose_delta" else 1)
+            self.magnitude.setValue(round(sel.magnitude * SLIDER_STEPS))
+            self.blend.setValue(round(sel.blend * SLIDER_STEPS))
             self._colour = sel.colour
             if self.displacement.isEnabled():
                 self.displacement.setChecked(sel.colour == "displacement")
@@ -231,8 +234,8 @@ class Controls(QWidget):
         self._emit()
 
     def _emit(self, *args, quiet: bool = False) -> None:
-        self.magnitude_label.setText(f"{self.magnitude.value() / 100:.2f}x")
-        self.blend_label.setText(f"{self.blend.value() / 100:.2f}")
+        self.magnitude_label.setText(f"{self.magnitude.value() / SLIDER_STEPS:.2f}x")
+        self.blend_label.setText(f"{self.blend.value() / SLIDER_STEPS:.2f}")
         self.identity.setEnabled(self.strategy.currentData() == "identity")
         has_b = self.pose_b.currentText() not in ("", NONE_POSE)
         self.blend.setEnabled(has_b)

@@ -99,7 +99,7 @@ class NoiseCanvas(FigureCanvasQTAgg):
         lo = min(0.5, float(rs.min(initial=1)) * 0.8)
         ax.set_xlim(lo, max(10.0, float(rs.max(initial=1)) * 1.3))
         ax.axvline(1.0, color="k", ls="--", lw=0.8, label="R = 1: noise level")
-        # the Transfer API's noise gate: no motion under GATE_LO, the decoder's output untouched over GATE_HI
+        # the Transfer API's noise gate: no motion under GATE_LO, the prediction untouched over GATE_HI
         ax.axvline(GATE_LO, color="#d62728", ls=":", lw=1.0, label=f"R = {GATE_LO:g}: gate closed below")
         ax.axvline(GATE_HI, color="#2ca02c", ls=":", lw=1.0, label=f"R = {GATE_HI:g}: gate open above")
         hi = ax.get_xlim()[1]
@@ -151,11 +151,6 @@ class HeatmapPanel(QTabWidget):
     def data(self) -> HeatmapData | None:
         """The heatmaps drawn (the session's)."""
         return None if self.session is None else self.session.heatmap_data
-
-    @property
-    def noise_target(self) -> str | None:
-        """The target whose noise floor is drawn."""
-        return None if self.session is None or self.session.noise is None else self.session.noise.target
 
     def show_data(self, d: HeatmapData) -> None:
         hl = {d.target: TARGET_COLOUR}

@@ -193,7 +193,8 @@ class MainWindow(QMainWindow):
         s.attach_truth(ShippedPaths.at(self.assets_root).identities)
         target = self.initial.target if self.initial.target in s.targets else s.targets[0]
         yield f"regenerating and encoding {target}", 0.7
-        s.prepared(target, "neutral_to_pose", self.initial.pose if self.initial.pose in s.poses() else None)
+        # the latent: the heatmaps read it (a neutral_to_pose prediction does not)
+        s.prepared(target, "neutral_to_pose", self.initial.pose if self.initial.pose in s.poses() else None).mu
         return Loaded(s)
 
     @property
@@ -316,7 +317,7 @@ class MainWindow(QMainWindow):
         ms = (time.perf_counter() - t0) * 1000
         self.update_ms.append(ms)
         self.update_label.setText(f"last update {ms:.0f} ms (model {state.seconds * 1000:.0f} ms, "
-                                  f"decoder {state.seconds_decoder * 1000:.0f} ms) at {time.strftime('%H:%M:%S')}")
+                                  f"Transfer.predict {state.seconds_predict * 1000:.0f} ms) at {time.strftime('%H:%M:%S')}")
 
     def show_error(self, msg: str) -> None:
         """A non-blocking error dialog; the window keeps running."""
@@ -345,7 +346,7 @@ class MainWindow(QMainWindow):
             name = s.add_mesh(m)
             yield f"encoding {name}", 0.5
             try:
-                s.prepared(name)
+                s.prepared(name).mu  # encode now: the heatmaps read it, and a mesh that cannot be encoded is no target
             except Exception:
                 s.remove_mesh(name)  # a mesh that cannot be encoded is no target
                 raise

@@ -45,7 +45,7 @@ class Prediction:
     error_mm: np.ndarray | None  # (V,) |pred - truth| in mm, None without truth
     displacement_mm: np.ndarray  # (V,) |pred - source| in mm
     normals: np.ndarray | None = None  # (V, 3) unit vertex normals for shading (computed off the UI thread)
-    gate: float = 1.0  # the Transfer API's noise gate (1 = the decoder's output untouched)
+    gate: float = 1.0  # the Transfer API's noise gate (1 = the predictor's output untouched)
     signal: float = float("inf")  # conditioning delta / latent noise floor
 
     @property
@@ -71,7 +71,7 @@ class ViewState:
     truth_title: str
     predictions: list[Prediction]  # one, or mean + nearest when comparing
     seconds: float = 0.0  # time the session took to compute it
-    seconds_decoder: float = 0.0  # of which inside Transfer.predict
+    seconds_predict: float = 0.0  # of which inside Transfer.predict
 
     @property
     def target(self) -> str:

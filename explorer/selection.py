@@ -6,13 +6,14 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 from latent_model.atomic import atomic_write_json
+from latent_model.errors import UserFacingError
 from latent_model.types import (COLOURS, PAIR_KINDS, ColourBy, PairKind, Strategy, check_blend, check_choice,
                                  check_magnitude, parse_strategy)
 
 SESSION_FORMAT = 1
 
 
-class SessionError(ValueError):
+class SessionError(UserFacingError, ValueError):
     """A selection or session file the user gave cannot be used (message says why and what to do)."""
 
 

@@ -29,7 +29,7 @@ import numpy as np
 from latent_model.corpus.pairs import pair_states, split_bank_key
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
-from latent_model.types import PAIR_KINDS
+from latent_model.types import FINAL, PAIR_KINDS
 
 from explorer.events import Event
 from explorer.results import (Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened, NoiseFloor, PairRef,
@@ -310,7 +310,7 @@ class Session:
         nf = NoiseFloor(target)
         poses = [p for p in poses if p in self.poses("neutral_to_pose")]
         for k, p in enumerate(poses):
-            v = self.truth.state(target, p, "skinning_plus_blendshape")
+            v = self.truth.state(target, p, FINAL)
             a = self.transfer.encode(v, faces, seed=101)
             b = self.transfer.encode(v, faces, seed=202)
             nf.poses.append(p)

@@ -14,7 +14,8 @@ import torch
 from safetensors.numpy import load_file, save_file
 
 from latent_model.atomic import atomic_write
-from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
+from latent_model.corpus.pairs import enumerate_pairs
+from latent_model.types import PAIR_KINDS
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_states
 from latent_model.errors import UserFacingError

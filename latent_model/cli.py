@@ -13,6 +13,7 @@ from pathlib import Path
 
 from latent_model.config import corpus_preset, default_corpus_dir
 from latent_model.errors import UserFacingError
+from latent_model.meshio import EXPORT_FORMATS
 from latent_model.types import PRESETS
 
 
@@ -147,7 +148,7 @@ def cmd_poses(args) -> None:
 
 
 def cmd_export(args) -> None:
-    from latent_model.meshio import EXPORT_FORMATS, export_mesh, from_identity
+    from latent_model.meshio import export_mesh, from_identity
 
     out = Path(args.output)
     if out.suffix.lower() not in EXPORT_FORMATS:
@@ -261,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = with_corpus(cs.add_parser("export", help="write one state as a mesh file"))
     e.add_argument("state", help="ID/POSE/VARIANT or ID/neutral, e.g. id003/elbowBentLf/skinning_plus_blendshape")
-    e.add_argument("-o", "--output", required=True, help="output mesh (.obj .ply .stl .glb .off)")
+    e.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)})")
     e.set_defaults(func=cmd_export)
 
     s = with_corpus(cs.add_parser("sheet", help="render a contact sheet (identities x poses) to PNG"))

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from latent_model.corpus.config import CorpusConfig, corpus_preset
-from latent_model.types import PAIR_KINDS, PRESETS
+from latent_model.types import PAIR_KINDS, PRESETS, PairKind, check_pair_kind
 
 
 def data_root() -> Path:
@@ -48,8 +48,15 @@ class PoseFieldsConfig:
     coef_max: float = 3.0  # cap on a field's amount (x the mean delta's)
     fit_ridge: float = 1e-2  # ridge of the read-out fit, relative to the Gram matrix's mean diagonal
     fit_vertices: int = 1500  # random source vertices per training pair in the fit
-    fit_kinds: tuple[str, ...] = ("neutral_to_pose",)  # pair kinds whose fields are fitted (others stay zero)
-    only_kinds: tuple[str, ...] = ("neutral_to_pose",)  # pair kinds predicted by the fields alone at inference
+    fit_kinds: tuple[PairKind, ...] = ("neutral_to_pose",)  # pair kinds whose fields are fitted (others stay zero)
+    only_kinds: tuple[PairKind, ...] = ("neutral_to_pose",)  # pair kinds predicted by the fields alone at inference
+
+    def __post_init__(self) -> None:
+        # a misspelt kind would silently change which predictor runs
+        for k in (*self.fit_kinds, *self.only_kinds):
+            check_pair_kind(k)
+        if not set(self.only_kinds) <= set(self.fit_kinds):
+            raise ValueError(f"PoseFieldsConfig.only_kinds {self.only_kinds} must be fitted (fit_kinds {self.fit_kinds})")
 
 
 @dataclass(frozen=True)
@@ -115,7 +122,7 @@ class TrainConfig:
     b_steps: int = 3000  # Phase B steps
     b_batch: int = 4  # pairs per Phase B step
     b_lr: float = 1e-3  # Phase B learning rate
-    b_kinds: tuple[str, ...] = PAIR_KINDS  # pair kinds Phase B draws from (uniformly)
+    b_kinds: tuple[PairKind, ...] = PAIR_KINDS  # pair kinds Phase B draws from (uniformly)
     checkpoint_every: int = 250  # steps between resumable checkpoints
     log_every: int = 10  # steps between metric log lines
     grad_clip: float = 1.0  # gradient-norm clip
@@ -163,7 +170,7 @@ def preset(name: str) -> Preset:
     if name == "tiny":
         model = ModelConfig(latent=32, enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64, sdf_layers=4,
                             decoder=VertexDecoderConfig(hidden=16, cond=32, bones=4, knn=6, edge=8),
-                            fields=PoseFieldsConfig(features=64, rff_sigma=3.0, fit_vertices=200), **sizes)
+                            fields=PoseFieldsConfig(features=64, fit_vertices=200), **sizes)
         train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
                             b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
         return Preset(name, corpus, model, train)

@@ -18,10 +18,13 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 
 from latent_model.atomic import atomic_write_bytes
+from latent_model.errors import UserFacingError
+from latent_model.types import Units, UpAxis
 
 FORMATS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")  # what load_mesh reads
 EXPORT_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")  # what export_mesh writes (the one list)
@@ -38,7 +41,7 @@ _R_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _R_Z_UP = np.eye(3)
 
 
-class MeshError(ValueError):
+class MeshError(UserFacingError, ValueError):
     """A mesh file the user gave cannot be used; the message names the file and the fix."""
 
 
@@ -201,7 +204,7 @@ def _check(path: str, v: np.ndarray, f: np.ndarray) -> None:
         raise MeshError(f"{path}: only {len(v)} vertices; a character mesh is needed")
 
 
-def detect_frame(vertices: np.ndarray, up: str = "auto", units: str = "auto", name: str = "mesh",
+def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto", name: str = "mesh",
                  placement: str = "auto") -> Frame:
     """The mapping from a file's frame into the model's.
 
@@ -212,10 +215,10 @@ def detect_frame(vertices: np.ndarray, up: str = "auto", units: str = "auto", na
     Raises MeshError for an absurd scale or a bad flag."""
     v = np.asarray(vertices, np.float64)
     ext = np.ptp(v, axis=0)
-    if up not in ("auto", "y", "z"):
-        raise MeshError(f"up axis {up!r}: use auto, y or z")
-    if units not in ("auto", *UNITS):
-        raise MeshError(f"units {units!r}: use auto, m, cm or mm")
+    if up not in get_args(UpAxis):
+        raise MeshError(f"up axis {up!r}: use {', '.join(get_args(UpAxis))}")
+    if units not in get_args(Units):
+        raise MeshError(f"units {units!r}: use {', '.join(get_args(Units))}")
     if placement not in ("auto", "keep", "centre"):
         raise MeshError(f"placement {placement!r}: use auto, keep or centre")
     up_axis = up if up != "auto" else ("y" if ext[1] > ext[2] else "z")
@@ -279,8 +282,8 @@ def sdf_shell_faces(vertices: np.ndarray, faces: np.ndarray, min_area_fraction: 
     return np.ascontiguousarray(faces[keep[comp]])
 
 
-def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up: str = "auto",
-                units: str = "auto", placement: str = "auto", source_path: Path | None = None,
+def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up: UpAxis = "auto",
+                units: Units = "auto", placement: str = "auto", source_path: Path | None = None,
                 source_text: str | None = None) -> UserMesh:
     """A UserMesh from arrays in some user frame (see `detect_frame`)."""
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
@@ -296,7 +299,7 @@ def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up:
     return UserMesh(name, mv, wf, sdf_shell_faces(mv.astype(np.float64), wf), frame, inv, f, source_path, source_text)
 
 
-def load_mesh(path: str | Path, up: str = "auto", units: str = "auto", placement: str = "auto") -> UserMesh:
+def load_mesh(path: str | Path, up: UpAxis = "auto", units: Units = "auto", placement: str = "auto") -> UserMesh:
     """Read a mesh file (OBJ, PLY, STL, GLB/GLTF, OFF) and normalise it into the model frame."""
     path = Path(path)
     v, f, text = read_file(path)

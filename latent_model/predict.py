@@ -12,26 +12,29 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, get_args
 
 import numpy as np
 
-from latent_model.meshio import EXPORT_FORMATS, MeshError, UserMesh, export_mesh, load_mesh
+from latent_model.errors import UserFacingError
+from latent_model.meshio import EXPORT_FORMATS, FORMATS, MeshError, UserMesh, export_mesh, load_mesh
+from latent_model.types import (MAGNITUDE_RANGE, PairKind, Strategy, Units, UpAxis, check_blend, check_magnitude,
+                                 check_pair_kind, parse_strategy)
 
 if TYPE_CHECKING:
-    from latent_model.transfer import TransferOutput
+    from latent_model.transfer import PreparedMesh, TransferOutput
 
 
-class PredictError(ValueError):
+class PredictError(UserFacingError, ValueError):
     """A bad request to `lrr predict` (unknown pose, bad slider value, missing model)."""
 
 
 def check_pose(transfer, pose: str, kind: str) -> None:
     """Raise PredictError listing the valid names when the bank has no delta for `pose`."""
-    from latent_model.types import PAIR_KINDS
-
-    if kind not in PAIR_KINDS:
-        raise PredictError(f"unknown pair kind {kind!r}; valid: {', '.join(PAIR_KINDS)}")
+    try:
+        check_pair_kind(kind)
+    except ValueError as e:
+        raise PredictError(str(e)) from None
     valid = transfer.bank.poses(kind)
     if pose not in valid:
         raise PredictError(f"unknown pose {pose!r} for pair kind {kind}. Valid poses ({len(valid)}): {', '.join(valid)}")
@@ -54,13 +57,11 @@ def load_transfer(checkpoint: str | Path | None = None, bank: str | Path | None 
         raise PredictError(str(e)) from None
 
 
-def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose_delta", magnitude: float = 1.0,
-                 kind: str = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
-                 seed: int = 0) -> tuple["TransferOutput", float, float]:
-    """(the Transfer output: vertices (W, 3), conditioning label, noise gate...; prepare seconds,
-    predict seconds) of a loaded mesh."""
-    from latent_model.types import check_blend, check_magnitude, parse_strategy
-
+def predict_file(transfer, mesh: UserMesh, pose: str, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
+                 kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
+                 seed: int = 0) -> tuple["TransferOutput", "PreparedMesh", float]:
+    """(the Transfer output: vertices (W, 3), conditioning label, noise gate...; the prepared mesh,
+    which says what was derived from it; seconds) of a loaded mesh."""
     check_pose(transfer, pose, kind)
     if pose_b is not None:
         check_pose(transfer, pose_b, kind)
@@ -74,26 +75,25 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: str = "mean_pose
         raise PredictError("--blend needs --pose-b (the pose to blend toward)")
     t0 = time.perf_counter()
     prepared = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
-    t1 = time.perf_counter()
     try:
         result = transfer.predict_detail(prepared, pose, strategy, magnitude, kind, pose_b, blend)
     except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
         raise PredictError(str(e).strip("'\"")) from None
-    return result, t1 - t0, time.perf_counter() - t1
+    return result, prepared, time.perf_counter() - t0
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--mesh", required=True, help="input mesh (.obj .ply .stl .glb .gltf .off)")
+    p.add_argument("--mesh", required=True, help=f"input mesh ({' '.join(FORMATS)})")
     p.add_argument("--pose", required=True, help="pose name, e.g. elbowBentLf (`lrr corpus poses` lists them)")
     p.add_argument("--pose-b", help="second pose to blend toward")
     p.add_argument("--blend", type=float, default=0.0, help="0 = pose A, 1 = pose B (default 0)")
     p.add_argument("--strategy", default="mean",
                    help="mean (mean pose delta, default: it transfers best on held-out bodies), "
                         "nearest (nearest identity delta) or identity:<id>")
-    p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r, in [0, 2] (default 1)")
+    p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r, in [%g, %g] (default 1)" % MAGNITUDE_RANGE)
     p.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose)")
-    p.add_argument("--up", default="auto", choices=("auto", "y", "z"), help="up axis of the file (default: detected)")
-    p.add_argument("--units", default="auto", choices=("auto", "m", "cm", "mm"), help="units of the file (default: detected)")
+    p.add_argument("--up", default="auto", choices=get_args(UpAxis), help="up axis of the file (default: detected)")
+    p.add_argument("--units", default="auto", choices=get_args(Units), help="units of the file (default: detected)")
     p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
     p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
     p.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in the input's frame and units")
@@ -107,8 +107,8 @@ def run_cli(args) -> None:
     mesh = load_mesh(args.mesh, up=args.up, units=args.units)
     t_load = time.perf_counter() - t0
     transfer = load_transfer(args.checkpoint, args.bank)
-    result, t_prep, t_pred = predict_file(transfer, mesh, args.pose, args.strategy, args.magnitude,
-                                          args.kind, args.pose_b, args.blend)
+    result, prepared, t_pred = predict_file(transfer, mesh, args.pose, args.strategy, args.magnitude,
+                                            args.kind, args.pose_b, args.blend)
     verts, label = result.vertices, result.label
     export_mesh(mesh, verts, out)
     disp = np.linalg.norm(verts - mesh.vertices, axis=1) * 1000
@@ -119,4 +119,6 @@ def run_cli(args) -> None:
     if result.gate < 1.0:
         print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x the latent noise floor "
               f"(below 1.5x it carries no usable signal and the prediction keeps the source)")
-    print(f"wrote {out} (import {t_load:.2f} s, encode {t_prep:.2f} s, predict {t_pred:.2f} s)")
+    used = "its latent encoded" if "mu" in prepared.derived() else "no latent needed"
+    print(f"predicted by the {result.predictor.replace('_', ' ')} ({used}); "
+          f"wrote {out} (import {t_load:.2f} s, predict {t_pred:.2f} s)")

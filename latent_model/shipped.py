@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from latent_model.corpus.identities import IdentitySpec
-from latent_model.corpus.pairs import pair_states
 from latent_model.errors import UserFacingError
 
 REPO_ASSETS = Path(__file__).resolve().parent.parent / "assets"
@@ -105,8 +104,3 @@ class GroundTruth:
                 self._cache.clear()
             self._cache[key] = self.gen.state(self.spec(identity), pose, variant).astype(np.float32)
         return self._cache[key]
-
-    def pair(self, identity: str, kind: str, pose: str, source_pose: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(source, target) vertices of a pair of the given kind."""
-        (sp, sv), (tp, tv) = pair_states(kind, pose, source_pose)
-        return self.state(identity, sp, sv), self.state(identity, tp, tv)

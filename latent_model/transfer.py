@@ -33,7 +33,7 @@ from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check
 __all__ = ["GATE_HI", "GATE_LO", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
 
 # Noise gate, in units of the bank's noise floor (a delta of sampling noise alone is ~1): the
-# decoder's displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
+# predicted displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
 GATE_LO = 1.5
 GATE_HI = 3.0
 
@@ -120,7 +120,8 @@ class Transfer:
     def prepare(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray | None = None,
                 mu: np.ndarray | None = None, seed: int = 0) -> PreparedMesh:
         """A mesh (in the model frame) ready for `predict`; `mu` when its latent is known already.
-        Nothing is derived yet: the latent, normals and neighbourhoods follow on first read."""
+        Only the SDF shell (the body component, unless given) is found now: the latent, normals and
+        neighbourhoods follow on first read."""
         v = np.asarray(vertices, dtype=np.float32)
         f = np.asarray(faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4:

@@ -26,3 +26,28 @@ def generator():
     from latent_model.corpus.states import StateGenerator
 
     return StateGenerator()
+
+
+@pytest.fixture(scope="session")
+def untrained_model_moves():
+    """A function (model, bank, corpus) that gives an untrained model something to say: the vertex
+    decoder's weights jittered, pose prototypes from the bank's mean deltas and random read-outs,
+    so each pose's fields move the mesh differently (what training does with real data)."""
+    import torch
+
+    from latent_model.corpus.pairs import split_bank_key
+    from latent_model.types import PAIR_KINDS
+
+    def give(model, bank, corpus) -> None:
+        g = torch.Generator().manual_seed(0)
+        fields = model.pose_fields
+        protos = torch.zeros_like(fields.prototypes)
+        for (kind, key), (_, d) in bank.deltas.items():
+            protos[PAIR_KINDS.index(kind), corpus.pose_index(split_bank_key(kind, key)[0])] = torch.from_numpy(d.mean(0))
+        fields.set_prototypes(protos)
+        with torch.no_grad():
+            fields.readouts.copy_(torch.randn(fields.readouts.shape, generator=g) * 0.01)
+            for prm in model.vertex_decoder.parameters():
+                prm.add_(torch.randn(prm.shape, generator=g) * 0.05)
+
+    return give

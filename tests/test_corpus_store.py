@@ -8,7 +8,8 @@ import pytest
 from latent_model.cli import main as lrr
 from latent_model.corpus.config import corpus_preset
 from latent_model.corpus.build import build
-from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
+from latent_model.corpus.pairs import enumerate_pairs
+from latent_model.types import PAIR_KINDS
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.sdf import signed_distance
 from latent_model.corpus.store import Corpus, CorpusError

@@ -28,8 +28,8 @@ def test_coalescer_runs_latest_only():
     assert c.submit(1) is True  # idle: start now
     assert c.submit(2) is False and c.submit(3) is False and c.submit(4) is False  # busy: only the latest waits
     assert c.dropped == 2
-    assert c.done() == 4  # the newest request runs next, 2 and 3 never do
-    assert c.done() is None and not c.busy
+    assert c.take() == (True, 4)  # the newest request runs next, 2 and 3 never do
+    assert c.take() == (False, None) and not c.busy
     assert c.submit(5) is True
 
 
@@ -40,7 +40,7 @@ def test_coalescer_under_a_fast_producer():
         while x is not None:
             time.sleep(0.01)
             ran.append(x)
-            x = c.done()
+            ok, x = c.take()
 
     threads = []
     for i in range(200):

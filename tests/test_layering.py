@@ -19,6 +19,9 @@ LAYERS = {
     "latent_model.config": ("latent_model.corpus.config", "latent_model.types"),
     "latent_model.nn": ("latent_model.nn", "latent_model.config", "latent_model.types", "latent_model.errors"),
 }
+# inside inference, from the bottom up: a module never imports one that stands above it
+INFERENCE_ORDER = ("latent_model.encoding", "latent_model.checkpoint", "latent_model.bank", "latent_model.transfer",
+                   ("latent_model.predict", "latent_model.analysis"), "latent_model.cli", "explorer")
 # inference: what a user's prediction runs through; it never imports training code
 INFERENCE = ("latent_model.checkpoint", "latent_model.legacy", "latent_model.bank", "latent_model.encoding",
              "latent_model.transfer", "latent_model.predict", "latent_model.shipped", "latent_model.meshio",
@@ -32,6 +35,8 @@ def project_imports() -> dict[str, set[str]]:
         mod = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
         names = set()
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                raise AssertionError(f"{path}: a relative import (use the absolute module name, so layers can be read)")
             if isinstance(node, ast.Import):
                 names |= {a.name for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -62,6 +67,20 @@ def test_layers_import_only_downwards():
                 if up:
                     bad[mod] = up
     assert not bad, f"imports that run back up a layer: {bad}"
+
+
+def test_inference_modules_import_only_downwards():
+    imports = project_imports()
+    floors = [(f,) if isinstance(f, str) else f for f in INFERENCE_ORDER]
+    bad = {}
+    for i, floor in enumerate(floors):
+        above = [m for f in floors[i + 1:] for m in f]
+        for mod, names in imports.items():
+            if any(_under(mod, m) for m in floor):
+                up = sorted(n for n in names if any(_under(n, a) for a in above))
+                if up:
+                    bad[mod] = up
+    assert not bad, f"inference modules import a module above them: {bad}"
 
 
 def test_latent_model_never_imports_qt_or_explorer():

@@ -210,10 +210,18 @@ def test_presets_are_the_shipped_design_at_three_sizes():
     assert std.model == ModelConfig(n_identities=64, n_poses=81) and std.train == TrainConfig() and std.loss == LossWeights()
     for p in (tiny, paper):
         assert p.loss == std.loss
-        design = ("proto_temp", "coef_max", "fit_ridge", "fit_kinds", "only_kinds")
+        design = ("rff_sigma", "rff_seed", "proto_temp", "coef_max", "fit_ridge", "fit_kinds", "only_kinds")
         assert all(getattr(p.model.fields, k) == getattr(std.model.fields, k) for k in design), p.name
     assert paper.model.latent == 512 and paper.model.sdf_layers == 8 and paper.corpus.sdf.k == 16384
     assert std.model.fields.only_kinds == ("neutral_to_pose",)
+
+
+def test_the_shipped_checkpoint_is_the_standard_preset():
+    """The defaults describe the model that ships: its stored preset is `preset("standard")`."""
+    from latent_model.checkpoint import stored_preset
+    from latent_model.shipped import ShippedPaths
+
+    assert stored_preset(ShippedPaths.at().checkpoint) == preset("standard")
 
 
 def _fields_with_random_prototypes(seed: int, kinds: int, temp: float | None = None):

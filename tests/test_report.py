@@ -8,7 +8,8 @@ import torch
 
 from latent_model.bank import build_bank
 from latent_model.config import preset
-from latent_model.corpus.pairs import PAIR_KINDS, enumerate_pairs
+from latent_model.corpus.pairs import enumerate_pairs
+from latent_model.types import PAIR_KINDS
 from latent_model.nn.model import LatentReRig
 from latent_model.checkpoint import save_checkpoint
 
@@ -18,16 +19,15 @@ STATS = ("n", "mean", "median", "std", "min", "max")
 
 
 @pytest.fixture(scope="module")
-def model_files(tiny_corpus, tmp_path_factory):
+def model_files(tiny_corpus, tmp_path_factory, untrained_model_moves):
     torch.manual_seed(0)
     p = preset("tiny")
     model = LatentReRig(p.model).eval()
-    with torch.no_grad():  # give the untrained decoder some motion to measure
-        for prm in model.vertex_decoder.parameters():
-            prm.add_(torch.randn_like(prm) * 0.05)
+    bank = build_bank(model, tiny_corpus, progress=False)
+    untrained_model_moves(model, bank, tiny_corpus)  # motion to measure, on every pair kind
     d = tmp_path_factory.mktemp("model")
     save_checkpoint(d / "model.safetensors", model, p, "all", 0)
-    build_bank(model, tiny_corpus, progress=False).save(d / "bank.safetensors")
+    bank.save(d / "bank.safetensors")
     return d / "model.safetensors", d / "bank.safetensors"
 
 

@@ -93,7 +93,7 @@ def test_fitted_pose_fields_reproduce_the_training_pairs(run_a, tiny_corpus):
     """The ridge-fitted pose fields, given the pose's mean training delta (the `mean` strategy),
     move training meshes much closer to their targets than no motion; with the fields left at
     zero they do not move them."""
-    from latent_model.corpus.pairs import PAIR_KINDS
+    from latent_model.types import PAIR_KINDS
     from latent_model.train.fit_pose_fields import fit_pose_fields
 
     c, sampler, mu, fields = _fields_from_phase_a(run_a, tiny_corpus)

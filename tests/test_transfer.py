@@ -10,21 +10,6 @@ from latent_model.nn.model import LatentReRig
 from latent_model.transfer import Transfer, parse_strategy
 
 
-def set_fields_from_bank(model, bank, corpus) -> None:
-    """Pose prototypes from the bank's mean deltas and random read-outs: pose fields that move the
-    mesh differently for each pose (what fitting does with real data)."""
-    from latent_model.corpus.pairs import split_bank_key
-    from latent_model.types import PAIR_KINDS
-
-    fields = model.pose_fields
-    protos = torch.zeros_like(fields.prototypes)
-    for (kind, key), (_, d) in bank.deltas.items():
-        protos[PAIR_KINDS.index(kind), corpus.pose_index(split_bank_key(kind, key)[0])] = torch.from_numpy(d.mean(0))
-    fields.set_prototypes(protos)
-    with torch.no_grad():
-        fields.readouts.copy_(torch.randn(fields.readouts.shape, generator=torch.Generator().manual_seed(0)) * 0.01)
-
-
 def held_out_neutral(t: Transfer, c, **kw):
     """(state, prepared mesh) of the first held-out identity's neutral."""
     s = c.state(c.split_indices("test")[0], None, "neutral")
@@ -32,15 +17,12 @@ def held_out_neutral(t: Transfer, c, **kw):
 
 
 @pytest.fixture(scope="module")
-def setup(tiny_corpus, tmp_path_factory):
+def setup(tiny_corpus, tmp_path_factory, untrained_model_moves):
     torch.manual_seed(0)
     p = preset("tiny")
     model = LatentReRig(p.model).eval()
-    with torch.no_grad():  # untrained decoders start near the identity map: give them something to say
-        for prm in model.vertex_decoder.parameters():
-            prm.add_(torch.randn_like(prm) * 0.05)
     bank = build_bank(model, tiny_corpus, progress=False)
-    set_fields_from_bank(model, bank, tiny_corpus)
+    untrained_model_moves(model, bank, tiny_corpus)
     path = tmp_path_factory.mktemp("bank") / "bank.safetensors"
     bank.save(path)
     return p, model, bank, path

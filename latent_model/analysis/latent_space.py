@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.distance import squareform
 
 from latent_model.analysis.metrics import cosine_stats, describe, ks, pairwise_cosines, pairwise_distances
-from latent_model.corpus.pairs import FINAL
+from latent_model.types import FINAL
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
 

@@ -31,7 +31,6 @@ PAPER = {
 NAMED_POSES = ("elbowBentLf", "elbowSuperBentLf", "kneeBentLf", "clavicleDownwardLf", "fingerKnuckleA01Lf",
                "fingerKnuckleD02Lf", "fingerKnuckleD03Lf", "browDwLf", "browDwRt", "puffLf", "cornerUpLf",
                "cornerPuckerLf", "cornerStretchLf", "jawOpen")
-BROAD_PREFIXES = ("elbow", "knee", "clavicle", "shoulder")
 BASELINE_DIMS = (16, 512)
 
 
@@ -86,7 +85,6 @@ def check_corpus_matches(meta: dict, checkpoint: Path, corpus) -> None:
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
              progress: bool = True) -> Path:
-
     from latent_model.analysis import figures
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sources import SdfGrid, model_source, pca_baseline_source
@@ -175,7 +173,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
 
 
 def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list, corpus, ids) -> str:
-    from latent_model.corpus.pairs import PAIR_KINDS
+    from latent_model.types import PAIR_KINDS
     from latent_model.corpus.poses import get_pose
 
     names = list(lat)

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from sklearn.decomposition import PCA
 
 from latent_model.analysis.latent_space import LatentSource, SampleCache, single_poses
-from latent_model.corpus.pairs import FINAL
+from latent_model.types import FINAL
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_sample_sets
 

@@ -15,7 +15,8 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import mesh_errors, normal_consistency
-from latent_model.corpus.pairs import PAIR_KINDS, Pair, enumerate_pairs
+from latent_model.corpus.pairs import Pair, enumerate_pairs
+from latent_model.types import PAIR_KINDS
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.corpus.store import Corpus

@@ -5,6 +5,7 @@ import numpy as np
 
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
+from latent_model.types import FINAL
 
 
 def corrective_table(corpus: Corpus, identities: list[int] | None = None) -> list[dict]:
@@ -17,7 +18,7 @@ def corrective_table(corpus: Corpus, identities: list[int] | None = None) -> lis
             continue
         maxes, means = [], []
         for i in ids:
-            d = np.linalg.norm(corpus.vertices(corpus.state(i, name, "skinning_plus_blendshape"))
+            d = np.linalg.norm(corpus.vertices(corpus.state(i, name, FINAL))
                                - corpus.vertices(corpus.state(i, name, "skinning")), axis=1) * 1000
             maxes.append(d.max())
             moved = d[d > 0.1]
@@ -50,8 +51,8 @@ def offset_copy_explained(corpus: Corpus, poses: list[str], identities: list[int
         for i in ids:
             j = nn[i]
             n_i = corpus.vertices(corpus.state(i, None, "neutral"))
-            t_i = corpus.vertices(corpus.state(i, name, "skinning_plus_blendshape"))
-            off = corpus.vertices(corpus.state(j, name, "skinning_plus_blendshape")) - corpus.vertices(corpus.state(j, None, "neutral"))
+            t_i = corpus.vertices(corpus.state(i, name, FINAL))
+            off = corpus.vertices(corpus.state(j, name, FINAL)) - corpus.vertices(corpus.state(j, None, "neutral"))
             err = np.linalg.norm(n_i + off - t_i, axis=1).mean()
             base = np.linalg.norm(n_i - t_i, axis=1).mean()
             vals.append(1.0 - err / max(base, 1e-12))

@@ -20,15 +20,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from latent_model.corpus.poses import get_pose
-from latent_model.types import FINAL, PAIR_KINDS, check_pair_kind
+from latent_model.types import FINAL, PAIR_KINDS, PairKind, check_pair_kind
 
-__all__ = ["FINAL", "PAIR_KINDS", "Pair", "StateRef", "pair_states", "bank_key", "split_bank_key",
-           "pairs_for_identity", "enumerate_pairs"]
 
 StateRef = tuple  # (pose name or None for the neutral, variant)
 
 
-def pair_states(kind: str, pose: str, source_pose: str | None = None) -> tuple[StateRef, StateRef]:
+def pair_states(kind: PairKind, pose: str, source_pose: str | None = None) -> tuple[StateRef, StateRef]:
     """((source pose or None, variant), (target pose, variant)) of a pair kind.
     `source_pose` names the component for `source_to_combo` (default: the combo's first one).
     A pose the kind does not apply to raises ValueError saying which kind to use."""
@@ -48,7 +46,7 @@ def pair_states(kind: str, pose: str, source_pose: str | None = None) -> tuple[S
     return (comp, FINAL), (pose, FINAL)
 
 
-def bank_key(kind: str, pose: str, component: str | None = None) -> str:
+def bank_key(kind: PairKind, pose: str, component: str | None = None) -> str:
     """The latent bank's key of a pair: the pose, or ``combo<component>`` for source_to_combo."""
     if kind == "source_to_combo":
         (comp, _), _ = pair_states(kind, pose, component)
@@ -56,7 +54,7 @@ def bank_key(kind: str, pose: str, component: str | None = None) -> str:
     return pose
 
 
-def split_bank_key(kind: str, key: str) -> tuple[str, str | None]:
+def split_bank_key(kind: PairKind, key: str) -> tuple[str, str | None]:
     """A bank key -> (pose, source component or None); the inverse of `bank_key`."""
     if kind == "source_to_combo" and "<" in key:
         pose, comp = key.split("<", 1)
@@ -66,7 +64,7 @@ def split_bank_key(kind: str, key: str) -> tuple[str, str | None]:
 
 @dataclass(frozen=True)
 class Pair:
-    kind: str
+    kind: PairKind
     identity: int
     pose: str  # the target pose config
     source: StateRef  # (pose or None for neutral, variant)
@@ -83,10 +81,12 @@ class Pair:
 
 
 def _applies(kind: str, pose: str) -> bool:
-    p = get_pose(pose)
-    if kind in ("skinning_to_skinning_plus_blendshape", "blendshape_to_skinning_plus_blendshape"):
-        return p.has_skeletal
-    return p.is_combo if kind == "source_to_combo" else True
+    """Whether `pose` has a pair of this kind (`pair_states` is the one definition)."""
+    try:
+        pair_states(kind, pose)
+        return True
+    except ValueError:
+        return False
 
 
 def pairs_for_identity(identity: int, poses: tuple[str, ...], kinds: tuple[str, ...] = PAIR_KINDS) -> list[Pair]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from latent_model.errors import UserFacingError
+from latent_model.types import PoseGroup
 
 SIDES = ("Lf", "Rt")
 
@@ -48,7 +49,7 @@ class FaceWeight:
 @dataclass(frozen=True)
 class PoseConfig:
     name: str
-    group: str  # "body" | "finger" | "face" | "mixed"
+    group: PoseGroup
     joints: tuple[JointRotation, ...] = ()
     face: tuple[FaceWeight, ...] = ()
     components: tuple[str, ...] = ()  # for combined poses: the single poses combined
@@ -60,10 +61,6 @@ class PoseConfig:
     @property
     def has_skeletal(self) -> bool:
         return bool(self.joints)
-
-    @property
-    def has_face(self) -> bool:
-        return bool(self.face)
 
 
 # ----------------------------------------------------------------------------- singles
@@ -125,7 +122,6 @@ _COMBOS: tuple[tuple[str, ...], ...] = (
     ("neckTurnLf", "jawOpen"),
 )
 _FISTS = ("fistLf", "fistRt")  # all twelve knuckles of one hand
-_FIST_PLUS = ("elbowBentLf", "fistLf")
 
 
 def _mirror_bone(bone: str) -> str:

@@ -7,6 +7,7 @@ import numpy as np
 
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
+from latent_model.types import FINAL
 from latent_model.atomic import atomic_save_figure
 from latent_model.render import draw_mesh
 
@@ -47,7 +48,7 @@ def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None
         neutral = corpus.vertices(corpus.state(i, None, "neutral"))
         for c, pose in enumerate(poses):
             ax = axes[r, c]
-            s = corpus.state(i, None, "neutral") if pose == "neutral" else corpus.state(i, pose, "skinning_plus_blendshape")
+            s = corpus.state(i, None, "neutral") if pose == "neutral" else corpus.state(i, pose, FINAL)
             v = corpus.vertices(s)
             values = None
             if pose != "neutral":

@@ -29,7 +29,7 @@ import numpy as np
 from latent_model.atomic import atomic_write
 from latent_model.corpus.config import CorpusConfig
 from latent_model.errors import UserFacingError
-from latent_model.types import PRESETS, VARIANTS
+from latent_model.types import FINAL, PRESETS, VARIANTS
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.poses import get_pose
 
@@ -73,13 +73,13 @@ class Layout:
         row = 1
         for pi, name in enumerate(self.poses):
             if get_pose(name).has_skeletal:
-                for variant in ("skinning", "blendshape", "skinning_plus_blendshape"):
+                for variant in VARIANTS[1:]:  # the posed variants
                     out.append((pi, v[variant], row))
                     row += 1
             else:  # face only: skinning == neutral, skinning_plus_blendshape == blendshape
                 out.append((pi, v["skinning"], 0))
                 out.append((pi, v["blendshape"], row))
-                out.append((pi, v["skinning_plus_blendshape"], row))
+                out.append((pi, v[FINAL], row))
                 row += 1
         return out
 

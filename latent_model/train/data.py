@@ -7,7 +7,8 @@ import numpy as np
 import torch
 
 from latent_model.config import Preset
-from latent_model.corpus.pairs import FINAL, PAIR_KINDS, Pair, enumerate_pairs
+from latent_model.corpus.pairs import Pair, enumerate_pairs
+from latent_model.types import FINAL, PAIR_KINDS
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
 from latent_model.nn.vertex_decoder import knn_graph

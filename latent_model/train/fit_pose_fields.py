@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from latent_model.corpus.pairs import PAIR_KINDS
+from latent_model.types import PAIR_KINDS
 from latent_model.corpus.store import Corpus
 from latent_model.nn.pose_fields import PoseFields
 from latent_model.train.data import PhaseBSampler
