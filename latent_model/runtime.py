@@ -20,8 +20,8 @@ def keep_freed_memory() -> bool:
 
     The vertex decoder allocates a few 1-15 MB temporaries per call; by default glibc serves
     them with mmap and unmaps them when freed, so every call page-faults its memory in again
-    (measured on 13.7k vertices: decoder median 43-55 ms -> 30-34 ms with this). The cost is
-    that the process keeps its peak heap. Returns whether the setting took effect."""
+    (docs/history.md has the timings). The cost is that the process keeps its peak heap.
+    Returns whether the setting took effect."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -30,8 +30,7 @@ def keep_freed_memory() -> bool:
     except (OSError, AttributeError):  # not glibc (e.g. musl)
         return False
     # Bounded: blocks up to 64 MB come from the heap and are reused; larger ones are still mapped
-    # and returned. Unbounded settings (everything from the heap, never trimmed) fragmented the heap
-    # of `lrr bank` to a 19.8 GB peak (measured).
+    # and returned (unbounded settings fragment the heap of `lrr bank` to many times its size).
     ok = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
     ok &= mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1
     ok &= mallopt(_M_TOP_PAD, TOP_PAD) == 1
@@ -47,10 +46,8 @@ def short_thread_spin() -> None:
 
     For a worker thread that predicts while the UI thread renders: the default spin (long)
     makes idle torch threads compete with rendering on a small CPU, while no spin at all
-    (OMP_WAIT_POLICY=PASSIVE) wakes the threads from sleep at each of the decoder's ~100 ops
-    (measured on 13.7k vertices: decoder median 24 ms with a short spin, 41 ms passive).
+    (OMP_WAIT_POLICY=PASSIVE) wakes the threads from sleep at each of the decoder's ~100 ops.
     A value the user set in the environment wins."""
-    import os
 
     if "OMP_WAIT_POLICY" not in os.environ:
         os.environ.setdefault("GOMP_SPINCOUNT", str(SPIN_COUNT))

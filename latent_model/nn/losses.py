@@ -88,8 +88,8 @@ def vertex_losses(pred: torch.Tensor, src: torch.Tensor, tgt: torch.Tensor, knn:
     d_hat, d = pred - src, tgt - src
     # RMSE over the whole batch, not the mean distance: with a mean-distance (L1-like) loss the
     # best answer while the condition is still ignored is the per-vertex *median* displacement
-    # over the batch, i.e. no motion (most pairs leave most vertices still) -- measured: the
-    # decoder never left that point. The squared form's optimum is the mean, whose gradient
+    # over the batch, i.e. no motion (most pairs leave most vertices still), and the decoder
+    # stays there. The squared form's optimum is the mean, whose gradient
     # pulls the prediction toward using the condition.
     out["pos"] = (pred - tgt).square().sum(dim=-1).mean().clamp(min=1e-12).sqrt()
     if weights.pos_rel > 0:
