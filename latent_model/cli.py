@@ -121,6 +121,8 @@ def cmd_info(args) -> None:
     print(f"  sex: {sum(g >= 0.5 for g in sexes)} male / {sum(g < 0.5 for g in sexes)} female; "
           f"muscle {min(s.phenotypes.get('muscle', .5) for s in c.identities):.2f}-{max(s.phenotypes.get('muscle', .5) for s in c.identities):.2f}, "
           f"weight {min(s.phenotypes.get('weight', .5) for s in c.identities):.2f}-{max(s.phenotypes.get('weight', .5) for s in c.identities):.2f}")
+    stands = m.get("rests", ["bind"])
+    print(f"rest configurations its states stand in: {', '.join(stands)} (all defined: `lrr corpus rests`)")
     if args.brief:
         return
     print("pose-space correctives |V_skin+bs - V_skin| (mm; max over identities, mean over moved vertices, std of per-identity max):")
@@ -145,6 +147,14 @@ def cmd_poses(args) -> None:
     for n in names:
         print(pose_line(POSES[n]))
     print(f"{len(names)} poses")
+
+
+def cmd_rests(args) -> None:
+    from latent_model.corpus.rests import REST_CONFIGS
+
+    print("rest configurations (degrees from anny's bind pose, both sides; `test` ones are held out):")
+    for r in REST_CONFIGS.values():
+        print(f"  {r.line()}")
 
 
 def cmd_export(args) -> None:
@@ -180,7 +190,14 @@ def cmd_sheet(args) -> None:
                 c.pose_index(p)
             except KeyError as e:
                 raise UserError(str(e).strip("'\"")) from None
-    out = contact_sheet(c, Path(args.output), ids, poses)
+    if args.rests:
+        from latent_model.corpus.sheet import rest_sheet
+
+        specs = [c.identities[i] for i in (ids if ids is not None else range(min(4, len(c.identities))))]
+        poses = tuple(args.poses.split(",")) if args.poses else ("neutral",)
+        out = rest_sheet(specs, Path(args.output), tuple(args.rests.split(",")), poses)
+    else:
+        out = contact_sheet(c, Path(args.output), ids, poses)
     print(f"wrote {out}")
 
 
@@ -260,6 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=PRESETS, help="only the poses of this preset (default: whole vocabulary)")
     p.set_defaults(func=cmd_poses)
 
+    rs = cs.add_parser("rests", help="the rest configurations (arms, elbows, legs, spine angles) and which are held out")
+    rs.set_defaults(func=cmd_rests)
+
     e = with_corpus(cs.add_parser("export", help="write one state as a mesh file"))
     e.add_argument("state", help="ID/POSE/VARIANT or ID/neutral, e.g. id003/elbowBentLf/skinning_plus_blendshape")
     e.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)})")
@@ -269,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True)
     s.add_argument("--identities", help="comma-separated ids (default: the first 8)")
     s.add_argument("--poses", help="comma-separated poses ('neutral' allowed)")
+    s.add_argument("--rests", help="comma-separated rest configurations (`lrr corpus rests` lists them): the "
+                                   "identities across them, generated through the rig")
     s.set_defaults(func=cmd_sheet)
 
     t = sub.add_parser("train", help="train Phase A (SDF-VAE), Phase B (vertex decoder) or both; resumes")

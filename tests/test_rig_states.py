@@ -128,3 +128,71 @@ def test_one_sided_mask_keeps_other_side_still(generator, people):
     right = rest.vertices[:, 0] < -0.03
     assert np.linalg.norm(g.face[right], axis=1).max() < 0.0007
     assert np.linalg.norm(g.face, axis=1).max() > 0.005
+
+
+# ----------------------------------------------------------------------------- rest configurations
+def _segment_angle(rig, T, rest, a: str, b: str, c: str) -> float:
+    """Angle (degrees) between segments a->b and b->c of the skeleton posed by T."""
+    h = rest.heads
+    i = rig.bone_index
+    at = lambda n: (T[i[n]] @ np.append(h[i[n]], 1.0))[:3]  # noqa: E731
+    u, v = at(b) - at(a), at(c) - at(b)
+    return float(np.degrees(np.arccos(u @ v / np.linalg.norm(u) / np.linalg.norm(v))))
+
+
+def test_the_bind_rest_leaves_every_state_unchanged(generator, tiny_corpus):
+    """rest="bind" is today's geometry, bit for bit: the same arrays as without a rest, and the
+    corpus' stored truth of a held-out identity."""
+    c = tiny_corpus
+    i = c.split_indices("test")[0]
+    spec = c.identities[i]
+    assert np.array_equal(generator.neutral(spec, "bind"), generator.neutral(spec))
+    for pose in ("elbowBentLf", "browDwLf", "elbowBentLf+kneeBentLf"):
+        for variant in ("skinning", "blendshape", "skinning_plus_blendshape"):
+            v = generator.state(spec, pose, variant, rest="bind")
+            assert np.array_equal(v, generator.state(spec, pose, variant))
+            assert np.array_equal(v.astype(np.float32), c.vertices(c.state(i, pose, variant)))
+
+
+def test_a_pose_acts_on_top_of_the_rest_configuration(generator):
+    """elbowBentLf on a T-pose character flexes its elbow 47 degrees from where the rest has it
+    (the T-pose straightens the bind pose's ~43 degrees), and the T-pose's arms are level."""
+    from latent_model.corpus.rests import get_rest
+
+    rig = generator.rig
+    rest, _ = generator.rest(SYMMETRIC)
+    tpose = get_rest("tpose").joints
+    arm = ("upperarm01.L", "lowerarm01.L", "wrist.L")
+    bind_angle = _segment_angle(rig, rig.bone_transforms(rest, ()), rest, *arm)
+    rest_angle = _segment_angle(rig, rig.bone_transforms(rest, (), tpose), rest, *arm)
+    posed_angle = _segment_angle(rig, rig.bone_transforms(rest, POSES["elbowBentLf"].joints, tpose), rest, *arm)
+    assert 38 < bind_angle < 48 and rest_angle < 2.0
+    assert posed_angle - rest_angle == pytest.approx(47.0, abs=0.5)
+    T = rig.bone_transforms(rest, (), tpose)
+    i = rig.bone_index
+    upper = (T[i["lowerarm01.L"]] @ np.append(rest.heads[i["lowerarm01.L"]], 1))[:3] - rest.heads[i["upperarm01.L"]]
+    assert abs(upper[2]) < 0.12 * np.linalg.norm(upper) and upper[0] > 0  # level, pointing to the character's left
+
+
+@pytest.mark.parametrize("rest_name", ["armsDown", "stoop", "tpose", "armsUp25"])
+def test_left_and_right_stay_mirrors_in_every_rest_configuration(generator, rest_name):
+    mm = generator.rig.mirror_map
+    neutral = generator.neutral(SYMMETRIC, rest_name)
+    assert np.linalg.norm((neutral @ MIRROR)[mm] - neutral, axis=1).max() < 1e-3  # the rest itself is symmetric
+    assert np.linalg.norm(neutral - generator.neutral(SYMMETRIC), axis=1).max() > 0.02  # and not the bind pose
+    for pose in ("elbowBentLf", "shoulderRaiseLf", "kneeBentLf"):
+        left = generator.state(SYMMETRIC, pose, "skinning_plus_blendshape", rest=rest_name)
+        right = generator.state(SYMMETRIC, pose[:-2] + "Rt", "skinning_plus_blendshape", rest=rest_name)
+        err = np.linalg.norm((left @ MIRROR)[mm] - right, axis=1).max()
+        assert err < 1e-3, f"{pose} in {rest_name}: mirrored differs from its Rt twin by {err * 1000:.2f} mm"
+
+
+def test_held_out_rest_configurations_are_never_training_ones():
+    from latent_model.corpus.rests import REST_CONFIGS, TEST_RESTS, TRAIN_RESTS, get_rest
+
+    assert "bind" in TRAIN_RESTS and len(TEST_RESTS) >= 3 and not set(TRAIN_RESTS) & set(TEST_RESTS)
+    angles = {n: (r.arms, r.elbows, r.legs, r.spine) for n, r in REST_CONFIGS.items()}
+    assert not {angles[n] for n in TEST_RESTS} & {angles[n] for n in TRAIN_RESTS}
+    assert min(r.arms for r in REST_CONFIGS.values()) <= -40 and max(r.arms for r in REST_CONFIGS.values()) >= 45
+    with pytest.raises(KeyError, match="valid: bind"):
+        get_rest("Tpose")

@@ -132,11 +132,14 @@ def _mirror_bone(bone: str) -> str:
     return bone
 
 
+def mirror_joints(joints: tuple[JointRotation, ...]) -> tuple[JointRotation, ...]:
+    """The right-side mirror of left-side rotations: the same axis rule and angle on the mirrored
+    bone; `rig.resolve_axis` mirrors the axis."""
+    return tuple(JointRotation(_mirror_bone(j.bone), j.axis, j.degrees, True) for j in joints)
+
+
 def _sided(name: str, joints: tuple[JointRotation, ...], side: str) -> tuple[str, tuple[JointRotation, ...]]:
-    if side == "Lf":
-        return name + "Lf", joints
-    # Rt: same axis rule and angle on the mirrored bone; rig.resolve_axis mirrors the axis.
-    return name + "Rt", tuple(JointRotation(_mirror_bone(j.bone), j.axis, j.degrees, True) for j in joints)
+    return (name + "Lf", joints) if side == "Lf" else (name + "Rt", mirror_joints(joints))
 
 
 def _build_table() -> dict[str, PoseConfig]:

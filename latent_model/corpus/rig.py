@@ -137,20 +137,32 @@ class Rig:
             return across if float(across @ curl) >= 0 else -across
         raise ValueError(f"unknown axis rule {j.axis!r} for {j.bone}")
 
-    def bone_transforms(self, rest: RestShape, joints: tuple[JointRotation, ...]) -> np.ndarray:
+    def _rotation(self, rest: RestShape, j: JointRotation) -> tuple[int, np.ndarray]:
+        b = self.bone_index.get(j.bone)
+        if b is None:
+            raise ValueError(f"unknown bone {j.bone!r}")
+        rotvec = self.resolve_axis(rest, j) * np.deg2rad(j.degrees)
+        return b, roma.rotvec_to_rotmat(torch.as_tensor(rotvec)).numpy()
+
+    def bone_transforms(self, rest: RestShape, joints: tuple[JointRotation, ...],
+                        base: tuple[JointRotation, ...] = ()) -> np.ndarray:
         """(J, 4, 4) transforms T_c mapping rest-world points to posed-world points.
 
         T_c = T_parent . [L_c | h_c - L_c h_c], L_c the bone's own rotation (identity if unposed).
+        `base`: a rest configuration's rotations, applied first; `joints` then act in each bone's
+        rest-configured frame (L_c = L_base L_joints), as a rig's local rotations do.
         """
         J = len(self.bone_labels)
         local = np.tile(np.eye(3), (J, 1, 1))
         for j in joints:
-            b = self.bone_index.get(j.bone)
-            if b is None:
-                raise ValueError(f"unknown bone {j.bone!r}")
-            rotvec = self.resolve_axis(rest, j) * np.deg2rad(j.degrees)
-            R = roma.rotvec_to_rotmat(torch.as_tensor(rotvec)).numpy()
+            b, R = self._rotation(rest, j)
             local[b] = R @ local[b]  # compose if a combo rotates one bone twice
+        if base:
+            rest_local = np.tile(np.eye(3), (J, 1, 1))
+            for j in base:
+                b, R = self._rotation(rest, j)
+                rest_local[b] = R @ rest_local[b]
+            local = rest_local @ local
         T = np.zeros((J, 4, 4))
         h = rest.heads
         for c in range(J):

@@ -65,3 +65,39 @@ def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None
     fig.suptitle("Corpus contact sheet (colour: displacement from neutral, 0-20 mm)", fontsize=10)
     fig.tight_layout()
     return atomic_save_figure(fig, out, dpi=dpi)
+
+
+def rest_sheet(specs: list, out: Path, rests: tuple[str, ...], poses: tuple[str, ...] = ("neutral",),
+               dpi: int = 70, generator=None) -> Path:
+    """Identities (rows) across rest configurations x poses (columns), generated from the identity
+    specs through the rig (no corpus rows needed); a pose is coloured by its displacement from that
+    rest's neutral. Written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from latent_model.corpus.rests import get_rest
+    from latent_model.corpus.states import StateGenerator
+
+    for r in rests:
+        get_rest(r)  # unknown names raise with the valid ones
+    gen = generator or StateGenerator()
+    cols = [(r, p) for r in rests for p in poses]
+    fig, axes = plt.subplots(len(specs), len(cols), figsize=(2.0 * len(cols), 2.6 * len(specs)), squeeze=False)
+    for row, spec in enumerate(specs):
+        for col, (rest, pose) in enumerate(cols):
+            ax = axes[row, col]
+            neutral = gen.neutral(spec, rest)
+            v = neutral if pose == "neutral" else gen.state(spec, pose, FINAL, rest=rest)
+            values = None if pose == "neutral" else np.linalg.norm(v - neutral, axis=1) * 1000
+            draw_mesh(ax, v, gen.faces, "front", values=values, cmap="YlOrRd", vmin=0,
+                      vmax=20 if values is not None else None)
+            _crop(ax, v, pose, neutral)
+            if row == 0:
+                ax.set_title(rest if pose == "neutral" else f"{rest}\n{pose}", fontsize=8)
+            if col == 0:
+                ax.text(0.0, 1.0, f"{spec.id} {spec.split}", transform=ax.transAxes, fontsize=7, va="top")
+    fig.suptitle("Rest configurations (colour: displacement from that rest's neutral, 0-20 mm)", fontsize=10)
+    fig.tight_layout()
+    return atomic_save_figure(fig, out, dpi=dpi)

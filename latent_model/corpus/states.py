@@ -19,6 +19,7 @@ from latent_model.corpus.correctives import pose_corrective
 from latent_model.corpus.face import FaceCarrier
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.poses import PoseConfig, get_pose
+from latent_model.corpus.rests import get_rest
 from latent_model.corpus.rig import RestShape, Rig
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.types import VARIANTS
@@ -56,32 +57,43 @@ class StateGenerator:
             self._cache = (repr(spec), rest, vertex_normals(rest.vertices, self.rig.faces).astype(np.float64))
         return self._cache[1], self._cache[2]
 
-    def neutral(self, spec: IdentitySpec) -> np.ndarray:
-        return self.rest(spec)[0].vertices
-
-    def pose(self, spec: IdentitySpec, pose: PoseConfig | str) -> PoseGeometry:
-        p = get_pose(pose) if isinstance(pose, str) else pose
-        rest, normals = self.rest(spec)
-        rig = self.rig
-        T = rig.bone_transforms(rest, p.joints)
-        C = pose_corrective(rig, rest, normals, p.joints, T,
+    def neutral(self, spec: IdentitySpec, rest: str = "bind") -> np.ndarray:
+        """(V, 3) the identity standing in a rest configuration (the bind one: its rest shape)."""
+        if rest == "bind":
+            return self.rest(spec)[0].vertices
+        r = get_rest(rest)
+        shape, normals = self.rest(spec)
+        T = self.rig.bone_transforms(shape, r.joints)
+        C = pose_corrective(self.rig, shape, normals, r.joints, T,
                             spec.phenotypes.get("muscle", 0.5), spec.phenotypes.get("weight", 0.5))
-        F = self.carrier.offsets(rest.vertices, p.face, spec.face_style)
-        shaped = rest.vertices + F + C
-        if p.has_skeletal:
-            skin = rig.lbs(rest.vertices, T)
+        return self.rig.lbs(shape.vertices + C, T)
+
+    def pose(self, spec: IdentitySpec, pose: PoseConfig | str, rest: str = "bind") -> PoseGeometry:
+        """A pose on top of a rest configuration: the pose's rotations act in the rest-configured
+        skeleton; correctives follow every rotation in effect (the rest's and the pose's)."""
+        p = get_pose(pose) if isinstance(pose, str) else pose
+        base = get_rest(rest).joints
+        shape, normals = self.rest(spec)
+        rig = self.rig
+        T = rig.bone_transforms(shape, p.joints, base)
+        C = pose_corrective(rig, shape, normals, base + p.joints, T,
+                            spec.phenotypes.get("muscle", 0.5), spec.phenotypes.get("weight", 0.5))
+        F = self.carrier.offsets(shape.vertices, p.face, spec.face_style)
+        shaped = shape.vertices + F + C
+        if p.has_skeletal or base:
+            skin = rig.lbs(shape.vertices, T)
             final = rig.lbs(shaped, T)
         else:
-            skin = rest.vertices.copy()
+            skin = shape.vertices.copy()
             final = shaped.copy()
         return PoseGeometry(skin, shaped, final, C, F, T)
 
-    def state(self, spec: IdentitySpec, pose: str | None, variant: str) -> np.ndarray:
-        """(V, 3) float64 vertices of one state; `pose` None means the neutral state."""
+    def state(self, spec: IdentitySpec, pose: str | None, variant: str, rest: str = "bind") -> np.ndarray:
+        """(V, 3) float64 vertices of one state; `pose` None means the neutral state (of `rest`)."""
         if variant not in VARIANTS:
             raise ValueError(f"unknown variant {variant!r}; valid: {', '.join(VARIANTS)}")
         if variant == "neutral" or pose is None:
             if variant != "neutral" or pose is not None:
                 raise ValueError("the neutral state has no pose, and a pose needs a posed variant")
-            return self.neutral(spec)
-        return getattr(self.pose(spec, pose), variant)
+            return self.neutral(spec, rest)
+        return getattr(self.pose(spec, pose, rest), variant)
