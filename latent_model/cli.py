@@ -157,6 +157,42 @@ def cmd_rests(args) -> None:
         print(f"  {r.line()}")
 
 
+def cmd_examples(args) -> None:
+    from latent_model.corpus.examples import EXAMPLES, example_pair, get_example
+    from latent_model.corpus.rests import get_rest
+
+    print("example deformations outside the pose vocabulary (transfer from an example pair is judged on them):")
+    for e in EXAMPLES.values():
+        joints = ", ".join(f"{j.bone}:{j.axis}:{j.degrees:+.0f}" for j in e.pose.joints)
+        print(f"  {e.name:30s} {e.kind:11s} {e.description}  [{joints}]")
+    if not args.output:
+        return
+    from latent_model.corpus.states import StateGenerator
+    from latent_model.meshio import export_mesh, from_identity
+    from latent_model.shipped import load_identity_specs
+
+    specs, _ = load_identity_specs()
+    by_id = {x.id: x for x in specs}
+    names = args.identities.split(",") if args.identities else [x.id for x in specs if x.split == "test"][:4]
+    unknown = [n for n in names if n not in by_id]
+    if unknown:
+        raise UserError(f"unknown identities {unknown}; valid: {', '.join(by_id)}")
+    chosen = [get_example(n) for n in (args.examples.split(",") if args.examples else EXAMPLES)]
+    get_rest(args.rest)
+    gen = StateGenerator()
+    out = Path(args.output)
+    for e in chosen:
+        pair = example_pair(gen, [by_id[n] for n in names], e.name, args.rest)
+        meshes = {f"{pair.source}_neutral": pair.source_neutral, f"{pair.source}_deformed": pair.source_deformed}
+        for ident, (neutral, truth) in pair.targets.items():
+            meshes[f"{ident}_neutral"], meshes[f"{ident}_truth"] = neutral, truth
+        for stem, v in meshes.items():
+            path = out / e.name / f"{stem}.obj"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            export_mesh(from_identity(v, gen.faces, stem), v, path)
+        print(f"wrote {out / e.name}: the pair of {pair.source} and the truth of {', '.join(pair.targets)} ({args.rest})")
+
+
 def cmd_export(args) -> None:
     from latent_model.meshio import export_mesh, from_identity
 
@@ -276,6 +312,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = cs.add_parser("poses", help="the pose vocabulary: name, single/combo, skeletal and blendshape parts")
     p.add_argument("--preset", choices=PRESETS, help="only the poses of this preset (default: whole vocabulary)")
     p.set_defaults(func=cmd_poses)
+
+    ex = cs.add_parser("examples", help="the example deformations outside the vocabulary; -o writes their meshes")
+    ex.add_argument("-o", "--output", help="write each example's pair and its targets' truth (OBJ) under this folder")
+    ex.add_argument("--identities", help="comma-separated shipped identities, the first makes the pair "
+                                         "(default: the first four held-out ones)")
+    ex.add_argument("--examples", help="comma-separated example names (default: all)")
+    ex.add_argument("--rest", default="bind", help="rest configuration they stand in (default bind)")
+    ex.set_defaults(func=cmd_examples)
 
     rs = cs.add_parser("rests", help="the rest configurations (arms, elbows, legs, spine angles) and which are held out")
     rs.set_defaults(func=cmd_rests)

@@ -12,6 +12,7 @@ Axis rules (resolved per identity from its own rest skeleton, see `rig.py`):
   the cross product swung up to 64 deg out of the lateral axis from identity to identity
   (standard corpus: median 14 deg; feet moved up to 42 cm sideways, 2 of 14 held-out legs bent
   mostly sideways). The knee flexes about the fixed lateral axis instead.
+- ``"along"``: the parent segment (a twist about it, e.g. the hand about the forearm).
 - ``"palm"``: the hand's flexion axis (across the knuckles, index to pinky), oriented so
   positive angles curl the fingers toward the palm.
 - ``"+x" "-x" "+y" "-y" "+z" "-z"``: fixed axes of the rest frame (Z up, faces -Y, +X =

@@ -124,6 +124,10 @@ class Rig:
             if n < 1e-9:
                 raise ValueError(f"joint {j.bone} is straight in the bind pose; hinge axis undefined")
             return a / n
+        if j.axis == "along":
+            a = h[b] - h[self.parents[b]]  # the parent segment: a twist of the bone about it
+            a = a / np.linalg.norm(a)
+            return -a if j.mirrored else a  # M R(a) M = R(-M a): the mirrored bone's segment is M a
         if j.axis == "palm":
             side = j.bone[-1]
             idx = lambda name: self.bone_index[f"{name}.{side}"]  # noqa: E731
