@@ -14,7 +14,7 @@ import numpy as np
 
 from latent_model.corpus.poses import JointRotation, PoseConfig, get_pose
 from latent_model.corpus.rests import get_rest
-from latent_model.errors import UserFacingError
+from latent_model.errors import look_up
 from latent_model.types import FINAL
 
 
@@ -57,16 +57,9 @@ EXAMPLES: dict[str, ExampleDeformation] = {e.name: e for e in (
 )}
 
 
-class UnknownExampleError(UserFacingError, KeyError):
-    def __str__(self) -> str:
-        return str(self.args[0])
-
-
 def get_example(name: str) -> ExampleDeformation:
-    try:
-        return EXAMPLES[name]
-    except KeyError:
-        raise UnknownExampleError(f"unknown example deformation {name!r}; valid: {', '.join(EXAMPLES)}") from None
+    """The example deformation called `name`; unknown names raise with the valid ones."""
+    return look_up(EXAMPLES, name, "example deformation")
 
 
 @dataclass

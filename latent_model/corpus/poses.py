@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from latent_model.errors import UserFacingError
+from latent_model.errors import look_up
 from latent_model.types import PoseGroup
 
 SIDES = ("Lf", "Rt")
@@ -205,19 +205,9 @@ PAPER_POSES: tuple[str, ...] = (
 )
 
 
-class UnknownPoseError(UserFacingError, KeyError):
-    def __str__(self) -> str:  # KeyError quotes its message; we want it readable
-        return str(self.args[0])
-
-
 def get_pose(name: str) -> PoseConfig:
     """The pose config called `name`; unknown names raise with the list of valid ones."""
-    try:
-        return POSES[name]
-    except KeyError:
-        raise UnknownPoseError(
-            f"unknown pose {name!r}. Valid poses ({len(POSES)}): {', '.join(POSES)}"
-        ) from None
+    return look_up(POSES, name, "pose")
 
 
 def pose_line(p: PoseConfig) -> str:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from latent_model.corpus.poses import JointRotation, mirror_joints
-from latent_model.errors import UserFacingError
+from latent_model.errors import look_up
 
 RestSplit = Literal["train", "test"]
 
@@ -75,14 +75,6 @@ TRAIN_RESTS: tuple[str, ...] = tuple(n for n, r in REST_CONFIGS.items() if r.spl
 TEST_RESTS: tuple[str, ...] = tuple(n for n, r in REST_CONFIGS.items() if r.split == "test")
 
 
-class UnknownRestError(UserFacingError, KeyError):
-    def __str__(self) -> str:
-        return str(self.args[0])
-
-
 def get_rest(name: str) -> RestConfig:
     """The rest configuration called `name`; unknown names raise with the valid ones."""
-    try:
-        return REST_CONFIGS[name]
-    except KeyError:
-        raise UnknownRestError(f"unknown rest configuration {name!r}; valid: {', '.join(REST_CONFIGS)}") from None
+    return look_up(REST_CONFIGS, name, "rest configuration")

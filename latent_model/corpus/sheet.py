@@ -86,9 +86,10 @@ def rest_sheet(specs: list, out: Path, rests: tuple[str, ...], poses: tuple[str,
     cols = [(r, p) for r in rests for p in poses]
     fig, axes = plt.subplots(len(specs), len(cols), figsize=(2.0 * len(cols), 2.6 * len(specs)), squeeze=False)
     for row, spec in enumerate(specs):
+        neutrals = {r: gen.neutral(spec, r) for r in rests}  # one per rest, shared by its pose columns
         for col, (rest, pose) in enumerate(cols):
             ax = axes[row, col]
-            neutral = gen.neutral(spec, rest)
+            neutral = neutrals[rest]
             v = neutral if pose == "neutral" else gen.state(spec, pose, FINAL, rest=rest)
             values = None if pose == "neutral" else np.linalg.norm(v - neutral, axis=1) * 1000
             draw_mesh(ax, v, gen.faces, "front", values=values, cmap="YlOrRd", vmin=0,
