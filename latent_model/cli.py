@@ -102,11 +102,17 @@ def cmd_info(args) -> None:
 
     c = _open_corpus(args)
     m = c.manifest
-    train, test = c.split_indices("train"), c.split_indices("test")
-    stylised = [s.id for s in c.identities if s.stylised]
     sizes = {p.name: p.stat().st_size for p in c.path.glob("*.npy")}
-    print(f"corpus {c.path}  (preset {c.config.preset}, format v{m['format_version']}, digest {m['config_digest']})")
-    print(f"identities {len(c.identities)}: {len(train)} train / {len(test)} test; stylised (test): {', '.join(stylised) or '-'}")
+    print(f"corpus {c.path}  (preset {c.config.preset}, format v{m['format_version']}, "
+          f"generator v{m.get('generator_version', 3)}, digest {m['config_digest']})")
+    print(f"identities {len(c.identities)} characters of {len({s.person_id for s in c.identities})} persons "
+          f"(a character: a person in one rest configuration)")
+    for split in ("train", "val", "test"):
+        ids = [c.identities[i] for i in c.split_indices(split)]
+        if ids:
+            persons = {s.person_id for s in ids}
+            styl = sorted({s.person_id for s in ids if s.stylised})
+            print(f"  {split:5s} {len(persons):3d} persons, {len(ids):3d} characters; stylised: {', '.join(styl) or '-'}")
     singles = [p for p in c.poses if not get_pose(p).is_combo]
     print(f"poses {len(c.poses)} ({len(singles)} single, {len(c.poses) - len(singles)} combined); "
           f"states {m['n_states']}; geometries {m['n_geometries']}; vertices/mesh {m['n_vertices']}; "
@@ -117,12 +123,17 @@ def cmd_info(args) -> None:
           f"pairwise median {v['pairwise_median_mm']:.1f} mm, max {v['pairwise_max_mm']:.1f} mm")
     print(f"  stature {v['stature_min_m']:.2f}-{v['stature_max_m']:.2f} m (median {v['stature_median_m']:.2f}); "
           f"volume {v['volume_min_l']:.1f}-{v['volume_max_l']:.1f} L (median {v['volume_median_l']:.1f})")
-    sexes = [s.phenotypes.get("gender", 0.5) for s in c.identities]
+    persons = [s for s in c.identities if s.rest == "bind"]
+    sexes = [s.phenotypes.get("gender", 0.5) for s in persons]
+    muscle, weight = ([s.phenotypes.get(k, .5) for s in persons] for k in ("muscle", "weight"))
     print(f"  sex: {sum(g >= 0.5 for g in sexes)} male / {sum(g < 0.5 for g in sexes)} female; "
-          f"muscle {min(s.phenotypes.get('muscle', .5) for s in c.identities):.2f}-{max(s.phenotypes.get('muscle', .5) for s in c.identities):.2f}, "
-          f"weight {min(s.phenotypes.get('weight', .5) for s in c.identities):.2f}-{max(s.phenotypes.get('weight', .5) for s in c.identities):.2f}")
-    stands = m.get("rests", ["bind"])
-    print(f"rest configurations its states stand in: {', '.join(stands)} (all defined: `lrr corpus rests`)")
+          f"muscle {min(muscle):.2f}-{max(muscle):.2f}, weight {min(weight):.2f}-{max(weight):.2f}")
+    from latent_model.corpus.rests import get_rest
+
+    print("rest configurations its characters stand in (degrees from anny's bind pose; all: `lrr corpus rests`):")
+    for r in c.rests:
+        users = [s for s in c.identities if s.rest == r]
+        print(f"  {get_rest(r).line()}   {len(users):3d} characters ({', '.join(sorted({s.split for s in users}))})")
     if args.brief:
         return
     print("pose-space correctives |V_skin+bs - V_skin| (mm; max over identities, mean over moved vertices, std of per-identity max):")

@@ -71,7 +71,7 @@ class ModelConfig:
     sdf_hidden: int = 256  # SDF decoder width
     sdf_layers: int = 6  # SDF decoder depth; latent and x re-injected at the middle layer (DeepSDF)
     sdf_clamp: float = 0.05  # metres: clamp of the SDF reconstruction loss near the surface
-    n_identities: int = 64  # training identities (identity classifier classes)
+    n_identities: int = 64  # training persons (identity classifier classes; a person's rests share one)
     n_poses: int = 81  # poses of the corpus (pose classifier classes, prototype slots)
     decoder: VertexDecoderConfig = field(default_factory=VertexDecoderConfig)
     fields: PoseFieldsConfig = field(default_factory=PoseFieldsConfig)
@@ -166,7 +166,7 @@ class Preset:
 def preset(name: str) -> Preset:
     """Corpus + model + training config of a named preset."""
     corpus = corpus_preset(name)
-    sizes = dict(n_identities=corpus.n_identities - corpus.n_test, n_poses=len(corpus.pose_names()))
+    sizes = dict(n_identities=corpus.n_train_persons, n_poses=len(corpus.pose_names()))
     if name == "tiny":
         model = ModelConfig(latent=32, enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64, sdf_layers=4,
                             decoder=VertexDecoderConfig(hidden=16, cond=32, bones=4, knn=6, edge=8),

@@ -29,6 +29,15 @@ def generator():
 
 
 @pytest.fixture(scope="session")
+def people(generator):
+    """Two sampled (bind-rest) identities."""
+    from latent_model.corpus.identities import sample_identities
+
+    specs = sample_identities(8, 2, 1, 0, generator.rig.local_change_labels)
+    return specs[0], specs[1]
+
+
+@pytest.fixture(scope="session")
 def untrained_model_moves():
     """A function (model, bank, corpus) that gives an untrained model something to say: the vertex
     decoder's weights jittered, pose prototypes from the bank's mean deltas and random read-outs,

@@ -103,6 +103,7 @@ def test_evaluate_refuses_a_corpus_the_checkpoint_was_not_trained_on(model_files
     """A checkpoint records its corpus's digest; evaluating it against a corpus built by another
     config or generator version (e.g. after a rig fix) would score it on the wrong ground truth."""
     from latent_model.analysis.report import check_corpus_matches, evaluate
+    from latent_model.corpus.config import GENERATOR_VERSION
     from latent_model.corpus.store import CorpusError
     from latent_model.checkpoint import load_checkpoint
 
@@ -111,7 +112,12 @@ def test_evaluate_refuses_a_corpus_the_checkpoint_was_not_trained_on(model_files
     check_corpus_matches({}, model_files[0], tiny_corpus)  # older checkpoints without the record pass
     model, p, _ = load_checkpoint(model_files[0])
     stale = tmp_path / "stale.safetensors"
-    save_checkpoint(stale, model, p, "all", 0, extra={"corpus_digest": "0123456789abcdef"})
+    save_checkpoint(stale, model, p, "all", 0, extra={"corpus_digest": "0123456789abcdef",
+                                                      "corpus_generator": GENERATOR_VERSION})
     with pytest.raises(CorpusError, match="0123456789abcdef.*lrr corpus build --preset tiny --force"):
         evaluate(stale, model_files[1], tiny_corpus.path, tmp_path / "out", progress=False)
     assert not (tmp_path / "out" / "metrics.json").exists()
+    # a model of an older generator (the shipped one: v3, no record): rebuilding cannot help, say so
+    save_checkpoint(stale, model, p, "all", 0, extra={"corpus_digest": "0123456789abcdef"})
+    with pytest.raises(CorpusError, match=r"generator v3's corpus, this program builds v4.*--corpus"):
+        evaluate(stale, model_files[1], tiny_corpus.path, tmp_path / "out", progress=False)

@@ -72,15 +72,27 @@ def _table(header: list[str], rows: list[list]) -> str:
 
 def check_corpus_matches(meta: dict, checkpoint: Path, corpus) -> None:
     """Raise CorpusError when the checkpoint was trained on a corpus of another config or
-    generator version (its ground truth would not be the geometry the model learnt)."""
+    generator version (its ground truth would not be the geometry the model learnt). When the
+    checkpoint was trained on an older generator's corpus, the message says so: rebuilding cannot help, only that corpus or a retrained model."""
+    from latent_model.corpus.config import GENERATOR_VERSION
     from latent_model.corpus.store import CorpusError
 
-    trained_on = json.loads(meta.get("extra", "{}")).get("corpus_digest")
-    if trained_on and trained_on != corpus.manifest["config_digest"]:
-        raise CorpusError(f"checkpoint {checkpoint} was trained on a corpus with digest {trained_on}, but corpus "
-                          f"{corpus.path} has digest {corpus.manifest['config_digest']} (another config or generator "
-                          f"version): rebuild the corpus with `lrr corpus build --preset {corpus.config.preset} --force` "
-                          f"or evaluate a checkpoint trained on this corpus")
+    extra = json.loads(meta.get("extra", "{}"))
+    trained_on = extra.get("corpus_digest")
+    generator = extra.get("corpus_generator", 3)  # checkpoints before generator 4 did not record it
+    have = corpus.manifest["config_digest"]
+    if not trained_on or trained_on == have:
+        return
+    head = (f"checkpoint {checkpoint} was trained on a corpus with digest {trained_on}, but corpus {corpus.path} "
+            f"has digest {have}")
+    if generator != GENERATOR_VERSION:
+        raise CorpusError(f"{head}: the model predates this program's corpus generator (it was trained on generator "
+                          f"v{generator}'s corpus, this program builds v{GENERATOR_VERSION}), so `lrr corpus build` "
+                          f"no longer makes its corpus. Evaluate it with --corpus pointing at "
+                          f"the corpus it was trained on (built by the program version that trained it), or "
+                          f"retrain it with `lrr train all --preset {corpus.config.preset}` on today's corpus")
+    raise CorpusError(f"{head} (another config or generator version): rebuild the corpus with `lrr corpus build "
+                      f"--preset {corpus.config.preset} --force` or evaluate a checkpoint trained on this corpus")
 
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,

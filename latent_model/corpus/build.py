@@ -1,6 +1,6 @@
-"""Corpus build pipeline: identities x poses x variants -> vertices, normals, SDF samples.
+"""Corpus build pipeline: characters (person x rest) x poses x variants -> vertices, normals, SDF samples.
 
-Work unit = one identity (its whole block of geometry rows). Workers (one per core) write
+Work unit = one identity (a character) (its whole block of geometry rows). Workers (one per core) write
 their block into the memory-mapped arrays of ``DIR.partial``; the parent records finished
 identities in progress.json (atomic), so a killed build resumes where it stopped. When every
 identity is done the manifest is written and ``DIR.partial`` is renamed to ``DIR``.
@@ -20,8 +20,8 @@ from typing import Callable
 import numpy as np
 
 from latent_model.atomic import atomic_write_json
-from latent_model.corpus.config import CorpusConfig
-from latent_model.corpus.identities import IdentitySpec, sample_identities, variety_stats
+from latent_model.corpus.config import GENERATOR_VERSION, CorpusConfig
+from latent_model.corpus.identities import IdentitySpec, characters, sample_identities, variety_stats
 from latent_model.corpus.store import (FORMAT_VERSION, KIND, Corpus, CorpusError, Layout, atomic_save_npy,
                                        create_arrays, sdf_seed, write_block)
 
@@ -61,7 +61,7 @@ def build_identity(gen, spec: IdentitySpec, layout: Layout, cfg: CorpusConfig, i
     t0 = time.perf_counter()
     B, V, K = layout.block, len(gen.rig.base_rest.vertices), cfg.sdf.k
     verts = np.zeros((B, V, 3), dtype=np.float64)
-    verts[0] = gen.neutral(spec)
+    verts[0] = gen.neutral(spec)  # in the character's own rest configuration
     row = 1
     for name in layout.poses:
         g = gen.pose(spec, name)
@@ -111,13 +111,15 @@ def _read_json(path: Path) -> dict:
 
 
 def plan(cfg: CorpusConfig) -> tuple[list[IdentitySpec], Layout, dict]:
-    """Identities, layout and static mesh data (faces, body faces, mirror map) of a config."""
+    """Identities (characters), layout and static mesh data (faces, body faces, mirror map) of a config."""
     from latent_model.corpus.rig import Rig
     from latent_model.corpus.sdf import body_component_faces
 
     rig = Rig()
-    specs = sample_identities(cfg.n_identities, cfg.n_test, cfg.n_stylised, cfg.seed, rig.local_change_labels)
-    layout = Layout(cfg.n_identities, cfg.pose_names())
+    persons = sample_identities(cfg.n_identities, cfg.n_test, cfg.n_stylised, cfg.seed, rig.local_change_labels)
+    specs = characters(persons, cfg.seed, cfg.n_val, cfg.n_stylised_train, cfg.train_rests, cfg.val_rests,
+                       cfg.test_rests)
+    layout = Layout(len(specs), cfg.pose_names())
     static = {"faces": rig.faces.astype(np.int32),
               "body_faces": body_component_faces(rig.base_rest.vertices, rig.faces).astype(np.int32),
               "mirror_map": rig.mirror_map.astype(np.int32),
@@ -165,11 +167,11 @@ def build(cfg: CorpusConfig, out: Path, workers: int = 2, shard: tuple[int, int]
         "config_digest": cfg.digest(), "shard": shard_tag, "done": {}}
     atomic_write_json(prog_path, prog)
 
-    mine = [i for i in range(cfg.n_identities) if shard is None or i % shard[1] == shard[0]]
+    mine = [i for i in range(len(specs)) if shard is None or i % shard[1] == shard[0]]
     todo = [i for i in mine if str(i) not in prog["done"]]
     if stop_after is not None:
         todo = todo[:stop_after]
-    jobs = [(i, specs[i].to_dict(), cfg.to_dict(), list(layout.poses), str(partial), cfg.n_identities) for i in todo]
+    jobs = [(i, specs[i].to_dict(), cfg.to_dict(), list(layout.poses), str(partial), len(specs)) for i in todo]
     t_mesh = t_sdf = 0.0
     n_done = len(mine) - len([i for i in mine if str(i) not in prog["done"]])
     if progress:
@@ -201,13 +203,15 @@ def build(cfg: CorpusConfig, out: Path, workers: int = 2, shard: tuple[int, int]
 
 
 def _manifest(cfg: CorpusConfig, specs, layout: Layout, static: dict, stats: dict, shard_tag, complete: bool) -> dict:
+    n = len(specs)
     return {
-        "kind": KIND, "format_version": FORMAT_VERSION, "complete": complete, "shard": shard_tag,
-        "config": cfg.to_dict(), "config_digest": cfg.digest(),
-        "n_identities": cfg.n_identities, "n_vertices": static["n_vertices"],
-        "n_geometries": layout.n_geometries, "n_states": len(layout.local_states()) * cfg.n_identities,
+        "kind": KIND, "format_version": FORMAT_VERSION, "generator_version": GENERATOR_VERSION,
+        "complete": complete, "shard": shard_tag, "config": cfg.to_dict(), "config_digest": cfg.digest(),
+        "n_identities": n, "n_persons": cfg.n_identities, "n_vertices": static["n_vertices"],
+        "n_geometries": layout.n_geometries, "n_states": len(layout.local_states()) * n,
+        "rests": list(dict.fromkeys(s.rest for s in specs)),
         "poses": list(layout.poses), "identities": [s.to_dict() for s in specs],
-        "identity_stats": [stats.get(str(i), {}) for i in range(cfg.n_identities)],
+        "identity_stats": [stats.get(str(i), {}) for i in range(n)],
         "done_identities": sorted(int(i) for i in stats),
     }
 
@@ -271,11 +275,13 @@ def merge(shard_dirs: list[Path], out: Path, progress: Callable[[int, int], None
 
 
 def corpus_variety(corpus: Corpus) -> dict[str, float]:
-    """Variety of the neutral meshes (see identities.variety_stats) plus stature/volume ranges."""
-    V = np.stack([corpus.vertices(corpus.state(i, None, "neutral")) for i in range(len(corpus.identities))])
+    """Variety of the persons' bind-rest neutral meshes (see identities.variety_stats; another rest of a
+    person is not another shape) plus stature/volume ranges."""
+    bind = [i for i, s in enumerate(corpus.identities) if s.rest == "bind"]
+    V = np.stack([corpus.vertices(corpus.state(i, None, "neutral")) for i in bind])
     out = variety_stats(V.astype(np.float64))
-    st = np.asarray([s["stature_m"] for s in corpus.identity_stats])
-    vol = np.asarray([s["volume_l"] for s in corpus.identity_stats])
+    st = np.asarray([corpus.identity_stats[i]["stature_m"] for i in bind])
+    vol = np.asarray([corpus.identity_stats[i]["volume_l"] for i in bind])
     out.update(stature_min_m=float(st.min()), stature_median_m=float(np.median(st)), stature_max_m=float(st.max()),
                volume_min_l=float(vol.min()), volume_median_l=float(np.median(vol)), volume_max_l=float(vol.max()))
     return out

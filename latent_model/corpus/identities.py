@@ -1,8 +1,13 @@
-"""Identity sampling and the identity-level train/test split.
+"""Identity sampling, the person-level train/val/test split and characters (person x rest).
 
-Identities span both sexes, statures 1.50-1.95 m, lean to heavy, low to high muscle and
-varied heads and faces (anny phenotype + local-change sliders). Variety is measured, not
-assumed: see `variety_stats` (median nearest-identity distance must reach >= 25 mm).
+Persons span both sexes, statures 1.50-1.95 m, lean to heavy, low to high muscle and varied
+heads and faces (anny phenotype + local-change sliders). Variety is measured, not assumed: see
+`variety_stats` (median nearest-identity distance must reach >= 25 mm).
+
+A corpus identity is a *character*: one person standing in one rest configuration (rests.py).
+Every person has its bind-rest character (id ``id007``, at the index the person had before rests
+existed, so its truth and SDF seeds are unchanged); a person's other characters are
+``id007@tpose``... A split is a split of persons: all characters of a person share it.
 """
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ _FAMILIES = (
     "buttocks-", "breast-", "l-upperarm-", "l-lowerarm-", "l-upperleg-", "l-lowerleg-",
     "l-hand-", "l-foot-", "upperlegs-", "lowerlegs-",
 )
-# Stylised (out-of-distribution) characters: exaggerated heads and limb proportions.
+# Stylised (out-of-distribution) test characters: exaggerated heads and limb proportions.
 _STYLISED = (
     {"head-scale-vert-incr": 1.0, "head-scale-horiz-incr": 1.0, "head-scale-depth-incr": 1.0,
      "measure-upperarm-length-incr": -0.8, "measure-lowerarm-length-incr": -0.8,
@@ -28,6 +33,36 @@ _STYLISED = (
      "upperlegs-height-incr": 1.0, "lowerlegs-height-incr": 1.0, "torso-vshape-incr": 1.0,
      "nose-scale-vert-incr": 1.0, "l-ear-scale-incr": 1.0, "r-ear-scale-incr": 1.0},
 )
+
+
+# Families a stylised *training* recipe draws from (labels, sign-free: the sign is drawn per recipe).
+_STYLE_FAMILIES: tuple[tuple[str, ...], ...] = (
+    ("head-scale-vert-incr", "head-scale-horiz-incr", "head-scale-depth-incr"),  # big or small head
+    ("measure-upperarm-length-incr", "measure-lowerarm-length-incr"),  # long or short arms
+    ("upperlegs-height-incr", "lowerlegs-height-incr"),  # long or short legs
+    ("torso-scale-horiz-incr", "torso-scale-depth-incr", "stomach-pregnant-incr"),  # heavy or slight torso
+    ("l-hand-scale-incr", "r-hand-scale-incr"),
+    ("measure-neck-height-incr",),
+    ("torso-vshape-incr", "hip-scale-horiz-incr"),
+)
+MIN_RECIPE_DISTANCE = 1.0  # slider-space L2 a training recipe keeps from each test recipe
+
+
+def recipe_distance(a: dict[str, float], b: dict[str, float]) -> float:
+    """L2 distance of two local-change recipes over the union of their sliders (absent = 0)."""
+    keys = set(a) | set(b)
+    return float(np.sqrt(sum((a.get(k, 0.0) - b.get(k, 0.0)) ** 2 for k in keys)))
+
+
+def stylised_recipe(rng: np.random.Generator) -> dict[str, float]:
+    """A seeded stylised recipe: 3-4 families pushed to 0.6-1.0 of a slider, none close to a test recipe."""
+    while True:
+        out: dict[str, float] = {}
+        for f in sorted(rng.choice(len(_STYLE_FAMILIES), size=int(rng.integers(3, 5)), replace=False)):
+            value = float(rng.choice((-1.0, 1.0)) * rng.uniform(0.6, 1.0))
+            out.update({label: round(value, 3) for label in _STYLE_FAMILIES[f]})
+        if min(recipe_distance(out, t) for t in _STYLISED) >= MIN_RECIPE_DISTANCE:
+            return out
 
 
 @dataclass(frozen=True)
@@ -45,11 +80,17 @@ class IdentitySpec:
     """Everything needed to regenerate an identity through the rig (JSON-serialisable)."""
 
     id: str
-    split: str  # "train" | "test"
+    split: str  # "train" | "val" | "test" (the person's)
     phenotypes: dict[str, float]
     local_changes: dict[str, float]
     face_style: FaceStyle = field(default_factory=FaceStyle)
     stylised: bool = False
+    rest: str = "bind"  # the rest configuration this character stands in (rests.py)
+    person: str = ""  # the person it is ("" = its own id: the person's bind character)
+
+    @property
+    def person_id(self) -> str:
+        return self.person or self.id
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -60,7 +101,7 @@ class IdentitySpec:
         if "wave" in fs:
             fs["wave"] = tuple(fs["wave"])
         return IdentitySpec(d["id"], d["split"], dict(d["phenotypes"]), dict(d["local_changes"]),
-                            FaceStyle(**fs), bool(d.get("stylised", False)))
+                            FaceStyle(**fs), bool(d.get("stylised", False)), d.get("rest", "bind"), d.get("person", ""))
 
 
 def _mirror_label(label: str) -> str | None:
@@ -134,6 +175,53 @@ def sample_identities(n: int, n_test: int, n_stylised: int, seed: int,
         split = "test" if (s["stylised"] or i in plain_test) else "train"
         out.append(IdentitySpec(f"id{i:03d}", split, s["phenotypes"], s["local_changes"],
                                 _face_style(rng), s["stylised"]))
+    return out
+
+
+def characters(persons: list[IdentitySpec], seed: int, n_val: int = 0, n_stylised_train: int = 0,
+               train_rests: int = 0, val_rests: tuple[str, ...] = (), test_rests: tuple[str, ...] = ()
+               ) -> list[IdentitySpec]:
+    """The corpus identities of sampled persons: every person's bind character first (same order and
+    index as the persons), then the other rests' characters.
+
+    Among the non-test persons, `n_stylised_train` get a seeded stylised recipe on top of their own
+    sliders (one of them, and `n_val` - 1 plain ones, go to validation). Each training person also
+    stands in `train_rests` of the non-bind training rests (a balanced seeded cycle), each validation
+    person in one of `val_rests` (alternating), each test person in all `test_rests`.
+    """
+    from latent_model.corpus.rests import TRAIN_RESTS, get_rest
+
+    for name in (*val_rests, *test_rests):
+        get_rest(name)
+    rng = np.random.default_rng([seed, 4])  # its own stream: the persons stay as they were sampled
+    train = [i for i, p in enumerate(persons) if p.split == "train"]
+    if not 0 <= n_stylised_train <= len(train) or not 0 <= n_val <= len(train) - 1:
+        raise ValueError(f"need 0 <= n_stylised_train ({n_stylised_train}) <= {len(train)} training persons "
+                         f"and n_val ({n_val}) < {len(train)}")
+    styled = sorted(rng.choice(train, size=n_stylised_train, replace=False).tolist())
+    plain = [i for i in train if i not in styled]
+    val = (styled[:1] if n_val else []) + sorted(rng.choice(plain, size=max(0, n_val - bool(styled)), replace=False).tolist())
+    out = []
+    for i, p in enumerate(persons):
+        changes, stylised = p.local_changes, p.stylised
+        if i in styled:
+            changes, stylised = {**p.local_changes, **stylised_recipe(rng)}, True
+        out.append(IdentitySpec(p.id, "val" if i in val else p.split, p.phenotypes, changes, p.face_style, stylised))
+    extra = [r for r in TRAIN_RESTS if not get_rest(r).is_bind]
+    if train_rests > len(extra):
+        raise ValueError(f"train_rests ({train_rests}) exceeds the {len(extra)} non-bind training rests")
+    cycle = [extra[k] for k in rng.permutation(len(extra))]
+    n_train = 0
+    for i, b in enumerate(list(out)):
+        if b.split == "train":
+            mine = [cycle[(n_train * train_rests + k) % len(cycle)] for k in range(train_rests)]
+            n_train += 1
+        elif b.split == "val":
+            mine = [val_rests[val.index(i) % len(val_rests)]] if val_rests else []
+        else:
+            mine = list(test_rests)
+        out.extend(IdentitySpec(f"{b.id}@{r}", b.split, b.phenotypes, b.local_changes, b.face_style, b.stylised,
+                                r, b.id) for r in mine)
     return out
 
 

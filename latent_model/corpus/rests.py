@@ -12,7 +12,8 @@ A pose is applied on top of a rest configuration, as a rig does (`Rig.bone_trans
 elbowBentLf on a T-pose character flexes its elbow 47 degrees from where the rest has it.
 
 ``split`` says who stands in it: ``train`` configurations are seen in training (the bind one too),
-``test`` ones only by the held-out identities, so a held-out rest is never one a training state used.
+``val`` ones only by the validation identities (design choices are judged on rests no training state
+uses without looking at the test ones), ``test`` ones only by the held-out identities.
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from typing import Literal
 from latent_model.corpus.poses import JointRotation, mirror_joints
 from latent_model.errors import look_up
 
-RestSplit = Literal["train", "test"]
+RestSplit = Literal["train", "val", "test"]
 
 
 @dataclass(frozen=True)
@@ -66,12 +67,16 @@ REST_CONFIGS: dict[str, RestConfig] = {r.name: r for r in (
     RestConfig("armsWide", arms=38.0, elbows=-38.0, legs=4.0),  # close to a T, not quite
     RestConfig("stoop", arms=-8.0, spine=8.0, legs=10.0),  # legs apart, bent a little forward
     RestConfig("upright", arms=-25.0, elbows=-15.0, spine=-5.0),
-    # held out: no training state stands like these
+    # validation only: unseen in training, and not the test rests either
+    RestConfig("armsSides", arms=-35.0, elbows=-10.0, split="val"),
+    RestConfig("armsUp35", arms=35.0, elbows=-30.0, legs=3.0, split="val"),
+    # held out: no training or validation state stands like these
     RestConfig("armsDown30", arms=-30.0, split="test"),
     RestConfig("armsUp25", arms=25.0, elbows=-20.0, split="test"),
     RestConfig("tpose", arms=45.0, elbows=-43.0, legs=5.0, split="test"),  # a DCC T-pose: arms level and straight
 )}
 TRAIN_RESTS: tuple[str, ...] = tuple(n for n, r in REST_CONFIGS.items() if r.split == "train")
+VAL_RESTS: tuple[str, ...] = tuple(n for n, r in REST_CONFIGS.items() if r.split == "val")
 TEST_RESTS: tuple[str, ...] = tuple(n for n, r in REST_CONFIGS.items() if r.split == "test")
 
 

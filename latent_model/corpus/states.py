@@ -8,6 +8,14 @@ pose-space corrective C (all rest-space offsets):
 A face-only pose has T = identity, so its `skinning` state *is* the neutral geometry and
 its `skinning_plus_blendshape` state *is* its `blendshape` geometry: the store keeps one
 copy (several states may point at one geometry row).
+
+In a rest configuration R (bones T_R, its own corrective C_R, see rests.py) the character as it
+stands is neutral = LBS_{T_R}(rest + C_R), as a DCC export bakes it; a pose adds its rotations in
+the rest-configured skeleton (T) and the corrective follows every rotation in effect (C):
+- ``skinning``                 = LBS_T(rest + C_R)        (the standing character, bones moved)
+- ``blendshape``               = LBS_{T_R}(rest + F + C)  (the pose's shapes, bones as they stand)
+- ``skinning_plus_blendshape`` = LBS_T(rest + F + C)
+so the same sharing holds in every rest, and the bind rest (T_R = I, C_R = 0) is the rule above.
 """
 from __future__ import annotations
 
@@ -45,6 +53,7 @@ class StateGenerator:
         self.rig = rig or Rig()
         self.carrier = FaceCarrier(self.rig)
         self._cache: tuple[str, RestShape, np.ndarray] | None = None
+        self._standing: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def faces(self) -> np.ndarray:
@@ -52,44 +61,59 @@ class StateGenerator:
 
     def rest(self, spec: IdentitySpec) -> tuple[RestShape, np.ndarray]:
         """Rest shape and rest vertex normals (V, 3) of an identity (last one cached)."""
-        if self._cache is None or self._cache[0] != repr(spec):
+        key = repr((spec.phenotypes, spec.local_changes))  # the rest shape ignores the rest configuration
+        if self._cache is None or self._cache[0] != key:
             rest = self.rig.rest(spec.phenotypes, spec.local_changes)
-            self._cache = (repr(spec), rest, vertex_normals(rest.vertices, self.rig.faces).astype(np.float64))
+            self._cache = (key, rest, vertex_normals(rest.vertices, self.rig.faces).astype(np.float64))
+            self._standing = {}
         return self._cache[1], self._cache[2]
 
-    def neutral(self, spec: IdentitySpec, rest: str = "bind") -> np.ndarray:
-        """(V, 3) the identity standing in a rest configuration (the bind one: its rest shape)."""
-        if rest == "bind":
-            return self.rest(spec)[0].vertices
-        r = get_rest(rest)
+    def _corrective(self, spec: IdentitySpec, joints, T: np.ndarray) -> np.ndarray:
         shape, normals = self.rest(spec)
-        T = self.rig.bone_transforms(shape, r.joints)
-        C = pose_corrective(self.rig, shape, normals, r.joints, T,
-                            spec.phenotypes.get("muscle", 0.5), spec.phenotypes.get("weight", 0.5))
-        return self.rig.lbs(shape.vertices + C, T)
+        return pose_corrective(self.rig, shape, normals, joints, T,
+                               spec.phenotypes.get("muscle", 0.5), spec.phenotypes.get("weight", 0.5))
 
-    def pose(self, spec: IdentitySpec, pose: PoseConfig | str, rest: str = "bind") -> PoseGeometry:
-        """A pose on top of a rest configuration: the pose's rotations act in the rest-configured
-        skeleton; correctives follow every rotation in effect (the rest's and the pose's)."""
+    def standing(self, spec: IdentitySpec, rest: str) -> tuple[np.ndarray, np.ndarray]:
+        """(T_R (J, 4, 4), C_R (V, 3)): bones and corrective of the identity in a non-bind rest (cached)."""
+        shape, _ = self.rest(spec)
+        if rest not in self._standing:
+            joints = get_rest(rest).joints
+            T = self.rig.bone_transforms(shape, joints)
+            self._standing[rest] = (T, self._corrective(spec, joints, T))
+        return self._standing[rest]
+
+    def neutral(self, spec: IdentitySpec, rest: str | None = None) -> np.ndarray:
+        """(V, 3) the identity standing in a rest configuration (default: its spec's; bind: its rest shape)."""
+        rest = spec.rest if rest is None else rest
+        if get_rest(rest).is_bind:
+            return self.rest(spec)[0].vertices
+        T_R, C_R = self.standing(spec, rest)
+        return self.rig.lbs(self.rest(spec)[0].vertices + C_R, T_R)
+
+    def pose(self, spec: IdentitySpec, pose: PoseConfig | str, rest: str | None = None) -> PoseGeometry:
+        """A pose on top of a rest configuration (default: the spec's): the pose's rotations act in the
+        rest-configured skeleton; correctives follow every rotation in effect (the rest's and the pose's)."""
         p = get_pose(pose) if isinstance(pose, str) else pose
+        rest = spec.rest if rest is None else rest
         base = get_rest(rest).joints
-        shape, normals = self.rest(spec)
+        shape, _ = self.rest(spec)
         rig = self.rig
         T = rig.bone_transforms(shape, p.joints, base)
-        C = pose_corrective(rig, shape, normals, base + p.joints, T,
-                            spec.phenotypes.get("muscle", 0.5), spec.phenotypes.get("weight", 0.5))
+        C = self._corrective(spec, base + p.joints, T)
         F = self.carrier.offsets(shape.vertices, p.face, spec.face_style)
         shaped = shape.vertices + F + C
-        if p.has_skeletal or base:
-            skin = rig.lbs(shape.vertices, T)
-            final = rig.lbs(shaped, T)
-        else:
-            skin = shape.vertices.copy()
-            final = shaped.copy()
-        return PoseGeometry(skin, shaped, final, C, F, T)
+        if not base:  # bind rest: T_R = I, C_R = 0 (kept exact: no skinning by identity transforms)
+            if p.has_skeletal:
+                return PoseGeometry(rig.lbs(shape.vertices, T), shaped, rig.lbs(shaped, T), C, F, T)
+            return PoseGeometry(shape.vertices.copy(), shaped, shaped.copy(), C, F, T)
+        T_R, C_R = self.standing(spec, rest)
+        skin = rig.lbs(shape.vertices + C_R, T)
+        final = rig.lbs(shaped, T)
+        return PoseGeometry(skin, rig.lbs(shaped, T_R), final, C, F, T)
 
-    def state(self, spec: IdentitySpec, pose: str | None, variant: str, rest: str = "bind") -> np.ndarray:
-        """(V, 3) float64 vertices of one state; `pose` None means the neutral state (of `rest`)."""
+    def state(self, spec: IdentitySpec, pose: str | None, variant: str, rest: str | None = None) -> np.ndarray:
+        """(V, 3) float64 vertices of one state; `pose` None means the neutral state (of `rest`, default
+        the spec's)."""
         if variant not in VARIANTS:
             raise ValueError(f"unknown variant {variant!r}; valid: {', '.join(VARIANTS)}")
         if variant == "neutral" or pose is None:

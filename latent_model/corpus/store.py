@@ -224,8 +224,19 @@ class Corpus:
     def row(self, s: int) -> int:
         return int(self.states[s, 3])
 
-    def split_indices(self, split: str) -> list[int]:
-        return [i for i, s in enumerate(self.identities) if s.split == split]
+    def split_indices(self, split: str, rest: str | None = None) -> list[int]:
+        """Identities (characters) of a split ("train" | "val" | "test"), optionally of one rest."""
+        return [i for i, s in enumerate(self.identities) if s.split == split and (rest is None or s.rest == rest)]
+
+    def person_classes(self, split: str = "train") -> dict[int, int]:
+        """Character index -> its person's class (0..P-1, in person order): a person's rests share one."""
+        persons = list(dict.fromkeys(self.identities[i].person_id for i in self.split_indices(split)))
+        return {i: persons.index(self.identities[i].person_id) for i in self.split_indices(split)}
+
+    @property
+    def rests(self) -> tuple[str, ...]:
+        """The rest configurations its characters stand in (bind first)."""
+        return tuple(dict.fromkeys(s.rest for s in self.identities))
 
     # ------------------------------------------------------------------ arrays
     def vertices(self, s: int) -> np.ndarray:

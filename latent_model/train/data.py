@@ -45,7 +45,7 @@ class PhaseASampler:
         self.t = preset.train
         self.rng = np.random.default_rng(seed)
         self.train_ids = corpus.split_indices("train")
-        self.class_of = {i: k for k, i in enumerate(self.train_ids)}
+        self.class_of = corpus.person_classes("train")  # a person in two rests is one identity class
         self.singles = [p for p in corpus.poses if not get_pose(p).is_combo]
         self.skeletal = [p for p in self.singles if get_pose(p).has_skeletal]
         # combos whose components are all in the corpus, at most 3 components (fists are 12)

@@ -150,5 +150,6 @@ def train(preset: Preset, corpus: Corpus, run_dir: Path, phases: str = "all", de
         train_phase_b(model, preset, corpus, run_dir, device, fresh=fresh, progress=progress)
     final = run_dir / "model.safetensors"
     if dist_info()[0] == 0:
-        save_checkpoint(final, model, preset, phases, 0, extra={"corpus_digest": corpus.manifest["config_digest"]})
+        save_checkpoint(final, model, preset, phases, 0, extra={"corpus_digest": corpus.manifest["config_digest"],
+                                                                "corpus_generator": corpus.manifest.get("generator_version", 3)})
     return final
