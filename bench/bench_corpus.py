@@ -19,8 +19,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from latent_model.corpus.config import corpus_preset  # noqa: E402
-from latent_model.corpus.build import build  # noqa: E402
-from latent_model.corpus.store import Layout  # noqa: E402
+from latent_model.corpus.build import build, plan  # noqa: E402
 
 
 def _peak_rss_gb() -> tuple[float, float]:
@@ -41,7 +40,7 @@ def bench_tiny(runs: int, workers: int) -> None:
             mesh.append(res.mesh_seconds)
             geoms = res.geometries_built
     med = statistics.median(times)
-    print(f"tiny preset ({cfg.n_identities} identities, {len(cfg.pose_names())} poses, K={cfg.sdf.k}, "
+    print(f"tiny preset ({len(plan(cfg)[0])} characters of {cfg.n_identities} persons, {len(cfg.pose_names())} poses, K={cfg.sdf.k}, "
           f"{geoms} geometries, {workers} workers): median wall {med:.1f} s over {runs} runs "
           f"(all: {', '.join(f'{t:.1f}' for t in times)})")
     print(f"  meshes/s (wall) {geoms / med:.1f}; per worker: mesh generation {geoms / statistics.median(mesh):.1f} meshes/s, "
@@ -50,8 +49,9 @@ def bench_tiny(runs: int, workers: int) -> None:
 
 def bench_standard_sample(n_ids: int, workers: int) -> None:
     cfg = corpus_preset("standard")
-    n_shards = cfg.n_identities // n_ids
-    layout = Layout(cfg.n_identities, cfg.pose_names())
+    specs, layout, _ = plan(cfg)
+    n_chars = len(specs)
+    n_shards = n_chars // n_ids  # every n-th character: bind and rest ones in proportion
     with tempfile.TemporaryDirectory() as d:
         t = time.perf_counter()
         res = build(cfg, Path(d) / "std", workers=workers, shard=(0, n_shards))
@@ -59,12 +59,12 @@ def bench_standard_sample(n_ids: int, workers: int) -> None:
         disk = sum(p.stat().st_blocks * 512 for p in (Path(d) / "std").glob("*.npy"))
     built = res.identities_built
     per_id = wall / max(built, 1)
-    print(f"standard sample: {built} identities ({res.geometries_built} geometries, K={cfg.sdf.k}) in {wall:.1f} s "
+    print(f"standard sample: {built} characters ({res.geometries_built} geometries, K={cfg.sdf.k}) in {wall:.1f} s "
           f"with {workers} workers (incl. ~2 s worker start-up)")
     print(f"  per worker: mesh generation {res.geometries_built / res.mesh_seconds:.1f} meshes/s, "
           f"SDF {res.geometries_built / res.sdf_seconds:.1f} states/s")
-    print(f"  projected full build: {per_id * cfg.n_identities / 60:.1f} min for {cfg.n_identities} identities; "
-          f"disk {disk / built * cfg.n_identities / 1e9:.2f} GB ({layout.n_geometries} geometries)")
+    print(f"  projected full build: {per_id * n_chars / 60:.1f} min for {n_chars} characters; "
+          f"disk {disk / built * n_chars / 1e9:.2f} GB ({layout.n_geometries} geometries)")
 
 
 def main() -> None:

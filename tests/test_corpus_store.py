@@ -16,11 +16,16 @@ from latent_model.corpus.store import Corpus, CorpusError
 
 
 def test_split_and_identities(tiny_corpus, tiny_config):
-    c = tiny_corpus
-    assert len(c.identities) == tiny_config.n_identities
-    assert len(c.split_indices("test")) == tiny_config.n_test
-    assert all(s.split == "test" for s in c.identities if s.stylised)
-    assert sum(s.stylised for s in c.identities) == tiny_config.n_stylised
+    """Persons split train / val / test; each is a bind character plus its rests' characters."""
+    c, cfg = tiny_corpus, tiny_config
+    bind = [s for s in c.identities if s.rest == "bind"]
+    assert len(bind) == cfg.n_identities and [s.id for s in bind] == [f"id{i:03d}" for i in range(cfg.n_identities)]
+    assert len(c.split_indices("test", rest="bind")) == cfg.n_test and len(c.split_indices("val", rest="bind")) == cfg.n_val
+    assert len(c.identities) == cfg.n_identities + cfg.n_train_persons * cfg.train_rests + cfg.n_val \
+        + cfg.n_test * len(cfg.test_rests)
+    assert sum(s.stylised for s in bind if s.split == "test") == cfg.n_stylised
+    assert sum(s.stylised for s in bind if s.split != "test") == cfg.n_stylised_train
+    assert c.manifest["rests"] == list(c.rests) and c.manifest["generator_version"] == 4
 
 
 def test_every_state_present_and_deduplicated(tiny_corpus):

@@ -1,4 +1,6 @@
 """Latent bank and the Transfer API (mechanics, on an untrained tiny model)."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -70,9 +72,11 @@ def test_bank_round_trip_and_bad_files(setup, tmp_path):
 
 
 def test_transfer_strategies_sliders_and_errors(setup, tiny_corpus):
+    """Strategies and sliders change the prediction. The noise gate is off here (`test_noise_gate`
+    tests it): an untrained encoder's deltas may all lie under its floor."""
     p, model, bank, _ = setup
     c = tiny_corpus
-    t = Transfer(model, bank, c.config.sdf.k)
+    t = Transfer(model, dataclasses.replace(bank, noise_floor=0.0), c.config.sdf.k)
     test_id = c.split_indices("test")[0]
     s, mesh = held_out_neutral(t, c)
     outs = {}

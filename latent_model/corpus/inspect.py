@@ -29,12 +29,14 @@ def corrective_table(corpus: Corpus, identities: list[int] | None = None) -> lis
 
 
 def nearest_identities(corpus: Corpus, identities: list[int]) -> dict[int, int]:
-    """For each identity, the nearest *other* one among `identities` (mean per-vertex distance of neutrals)."""
+    """For each identity, the nearest one of another person among `identities` (mean per-vertex distance
+    of neutrals; the same person in another rest would be copying its own motion)."""
     V = np.stack([corpus.vertices(corpus.state(i, None, "neutral")) for i in identities]).astype(np.float64)
+    person = np.asarray([corpus.identities[i].person_id for i in identities])
     out = {}
     for a, i in enumerate(identities):
         d = np.linalg.norm(V - V[a], axis=2).mean(axis=1)
-        d[a] = np.inf
+        d[person == person[a]] = np.inf
         out[i] = identities[int(np.argmin(d))]
     return out
 

@@ -63,7 +63,7 @@ def contact_sheet(corpus: Corpus, out: Path, identities: list[int] | None = None
                 label = f"{spec.id} {spec.split}{' stylised' if spec.stylised else ''}\n{st:.2f} m"
                 ax.text(0.0, 1.0, label, transform=ax.transAxes, fontsize=7, va="top")
     fig.suptitle("Corpus contact sheet (colour: displacement from neutral, 0-20 mm)", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))
     return atomic_save_figure(fig, out, dpi=dpi)
 
 
@@ -98,7 +98,8 @@ def rest_sheet(specs: list, out: Path, rests: tuple[str, ...], poses: tuple[str,
             if row == 0:
                 ax.set_title(rest if pose == "neutral" else f"{rest}\n{pose}", fontsize=8)
             if col == 0:
-                ax.text(0.0, 1.0, f"{spec.id} {spec.split}", transform=ax.transAxes, fontsize=7, va="top")
+                label = f"{spec.person_id} {spec.split}{' stylised' if spec.stylised else ''}"
+                ax.text(0.0, 0.0, label, transform=ax.transAxes, fontsize=7, va="bottom")
     fig.suptitle("Rest configurations (colour: displacement from that rest's neutral, 0-20 mm)", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))  # room for the title above the column titles
     return atomic_save_figure(fig, out, dpi=dpi)

@@ -1,0 +1,94 @@
+"""Pilot of the motion decoder (decoder v2) on a corpus: trains it on the training characters'
+neutral -> pose pairs with a frozen encoder (default: the shipped model's), and prints the validation
+characters' explained motion / static leakage per rest, mean delta, for the broad body poses.
+
+    python bench/motion_pilot.py [--corpus DIR] [--checkpoint C] [--steps 1500] [--poses all|broad]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+BROAD = ("elbowBentLf", "elbowBentRt", "kneeBentLf", "kneeBentRt", "clavicleDownwardLf", "shoulderRaiseLf",
+         "shoulderForwardRt", "hipFlexLf", "wristFlexLf", "spineTwistLf", "neckTurnLf", "spineBendFw")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--corpus")
+    ap.add_argument("--checkpoint")
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--vertices", type=int, default=1024)
+    ap.add_argument("--hidden", type=int, default=128)
+    ap.add_argument("--train-persons", type=int, default=0, help="0: all")
+    ap.add_argument("--poses", default="body", help="body: every single body pose; broad: the 12 evaluated")
+    ap.add_argument("--save", help="write the decoder's state dict here")
+    args = ap.parse_args()
+    from latent_model.analysis.metrics import mesh_errors
+    from latent_model.checkpoint import load_checkpoint
+    from latent_model.config import default_corpus_dir
+    from latent_model.corpus.poses import POSES
+    from latent_model.corpus.store import Corpus
+    from latent_model.nn.motion_decoder import MotionDecoder
+    from latent_model.shipped import ShippedPaths
+    from latent_model.train.motion import (CharacterCache, DeltaTable, MotionTrainConfig, pair_inputs, predict,
+                                           train_motion_decoder)
+    from latent_model.types import FINAL, PAIR_KINDS
+
+    torch.set_num_threads(2)
+    c = Corpus(args.corpus or default_corpus_dir("standard"))
+    model, _, _ = load_checkpoint(args.checkpoint or ShippedPaths.at().checkpoint)
+    model.eval()
+    broad = tuple(p for p in BROAD if p in c.poses)
+    poses = broad if args.poses == "broad" else tuple(p for p in c.poses if POSES[p].group == "body"
+                                                      and not POSES[p].is_combo)
+    train = c.split_indices("train")
+    if args.train_persons:
+        keep = list(dict.fromkeys(c.identities[i].person_id for i in train))[:args.train_persons]
+        train = [i for i in train if c.identities[i].person_id in keep]
+    val = c.split_indices("val")
+    t = time.perf_counter()
+    table = DeltaTable(model, c, train + val, train, poses, torch.device("cpu"))
+    cache = CharacterCache(c)
+    for i in train + val:
+        cache.get(i)
+    print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
+          f"encoding + surface features {time.perf_counter() - t:.0f} s")
+    decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden)
+
+    def validate(dec) -> dict:
+        out: dict[str, list] = {}
+        for i in val:
+            v = cache.get(i)[0]
+            for p in broad:
+                pred = predict(dec, pair_inputs(cache, table, i, p, table.mean[p]))
+                e = mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v)
+                group = "bind" if c.identities[i].rest == "bind" else "val rests"
+                out.setdefault(group, []).append((e["explained"], e["leak_mm"]))
+        return {g: f"{np.mean([x[0] for x in r]):.3f} / {np.mean([x[1] for x in r]):.2f} mm" for g, r in out.items()}
+
+    cfg = MotionTrainConfig(steps=args.steps, batch=args.batch, vertices=args.vertices)
+    t = time.perf_counter()
+    train_motion_decoder(decoder, c, cache, table, train, poses, cfg, validate=validate,
+                         validate_every=max(args.steps // 3, 1))
+    print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
+    print(f"{'pose':20s} {'bind':>16s} {'val rests':>16s}")
+    for p in broad:
+        cells = {}
+        for i in val:
+            v = cache.get(i)[0]
+            e = mesh_errors(predict(decoder, pair_inputs(cache, table, i, p, table.mean[p])),
+                            c.vertices(c.state(i, p, FINAL)), v)
+            cells.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
+        print(f"{p:20s}" + "".join(f" {np.mean([e['explained'] for e in cells[g]]):7.2f} / "
+                                   f"{np.mean([e['leak_mm'] for e in cells[g]]):5.2f}" for g in ("bind", "rest")))
+    if args.save:
+        torch.save(decoder.state_dict(), args.save)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,125 @@
+"""Training the motion decoder (`nn/motion_decoder.py`) on random vertex subsets of many pairs.
+
+The encoder is frozen: every state's latent mean is encoded once. Each step draws `batch` training
+pairs (neutral -> pose of a training character), and of each `vertices` vertices, half where the
+pair moves the surface (> 2 mm) and half anywhere; the condition is the pair's own delta or, with
+probability `mean_prob`, the mean delta of its pose over the training characters (what transfer uses).
+Surface features are computed once per character from its neutral mesh.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from latent_model.corpus.store import Corpus
+from latent_model.encoding import encode_rows
+from latent_model.nn.motion_decoder import MotionDecoder
+from latent_model.surface import SurfaceFeatures, surface_features
+from latent_model.types import FINAL, PAIR_KINDS
+
+
+@dataclass
+class MotionTrainConfig:
+    steps: int = 3000
+    batch: int = 16
+    vertices: int = 1024
+    lr: float = 1e-3
+    mean_prob: float = 0.5
+    seed: int = 0
+
+
+class CharacterCache:
+    """Per character: neutral vertices, normals and surface features (computed on first use)."""
+
+    def __init__(self, corpus: Corpus) -> None:
+        self.c = corpus
+        self._f: dict[int, tuple[np.ndarray, np.ndarray, SurfaceFeatures]] = {}
+
+    def get(self, i: int) -> tuple[np.ndarray, np.ndarray, SurfaceFeatures]:
+        if i not in self._f:
+            s = self.c.state(i, None, "neutral")
+            v = self.c.vertices(s)
+            self._f[i] = (v, self.c.normals(s), surface_features(v, self.c.faces))
+        return self._f[i]
+
+
+class DeltaTable:
+    """Latent means of the neutral and final states of characters, their deltas and the mean per pose."""
+
+    def __init__(self, model, corpus: Corpus, ids: list[int], train_ids: list[int], poses: tuple[str, ...],
+                 device: torch.device) -> None:
+        c = corpus
+        rows = sorted({c.row(c.state(i, None, "neutral")) for i in ids}
+                      | {c.row(c.state(i, p, FINAL)) for i in ids for p in poses})
+        mu = encode_rows(model, c, rows, device, progress=False).numpy()
+        self.mu_neutral = {i: mu[c.row(c.state(i, None, "neutral"))] for i in ids}
+        self.delta = {(i, p): mu[c.row(c.state(i, p, FINAL))] - self.mu_neutral[i] for i in ids for p in poses}
+        self.mean = {p: np.mean([self.delta[(i, p)] for i in train_ids], axis=0) for p in poses}
+        self.scale = float(np.mean([np.linalg.norm(self.delta[(i, p)]) for i in train_ids for p in poses]))
+
+
+def _batch_tensors(rows: list[dict]) -> dict[str, torch.Tensor]:
+    return {k: torch.from_numpy(np.stack([r[k] for r in rows])).float() if rows[0][k].dtype != np.int64
+            else torch.from_numpy(np.stack([r[k] for r in rows])) for k in rows[0]}
+
+
+def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, delta: np.ndarray,
+                idx: np.ndarray | None = None) -> dict:
+    """Decoder inputs of character i's neutral (all vertices, or `idx`) with condition `delta`."""
+    v, n, sf = cache.get(i)
+    sel = slice(None) if idx is None else idx
+    r = np.linalg.norm(delta)
+    return {"v_src": v[sel], "coords": sf.coords[sel], "frames": sf.frames[sel], "normals": n[sel],
+            "medial": sf.medial[sel], "mu_src": table.mu_neutral[i], "delta_dir": delta / max(r, 1e-12),
+            "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose"))}
+
+
+def predict(decoder: MotionDecoder, inputs: dict) -> np.ndarray:
+    b = _batch_tensors([inputs])
+    with torch.no_grad():
+        out = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
+                      b["delta_dir"], b["r"], b["kind"])
+    return out[0].numpy()
+
+
+def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: CharacterCache, table: DeltaTable,
+                         train_ids: list[int], poses: tuple[str, ...], cfg: MotionTrainConfig,
+                         log=print, validate=None, validate_every: int = 500) -> list[dict]:
+    rng = np.random.default_rng(cfg.seed)
+    torch.manual_seed(cfg.seed)
+    opt = torch.optim.Adam(decoder.parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps, eta_min=cfg.lr * 0.05)
+    pairs = [(i, p) for i in train_ids for p in poses]
+    history = []
+    t0 = time.perf_counter()
+    for step in range(1, cfg.steps + 1):
+        rows, targets = [], []
+        for k in rng.integers(len(pairs), size=cfg.batch):
+            i, p = pairs[k]
+            v = cache.get(i)[0]
+            tgt = corpus.vertices(corpus.state(i, p, FINAL))
+            moving = np.flatnonzero(np.linalg.norm(tgt - v, axis=1) > 0.002)
+            half = cfg.vertices // 2
+            idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
+                                  rng.integers(len(v), size=cfg.vertices - half)])
+            delta = table.mean[p] if rng.random() < cfg.mean_prob else table.delta[(i, p)]
+            rows.append(pair_inputs(cache, table, i, p, delta, idx))
+            targets.append(tgt[idx])
+        b = _batch_tensors(rows)
+        pred = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
+                       b["delta_dir"], b["r"], b["kind"])
+        loss = (pred - torch.from_numpy(np.stack(targets)).float()).norm(dim=-1).mean() * 1000  # mm
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(decoder.parameters(), 1.0)
+        opt.step()
+        sched.step()
+        if step % 100 == 0 or step == 1:
+            log(f"step {step} loss {loss.item():.2f} mm ({time.perf_counter() - t0:.0f} s)")
+        if validate is not None and (step % validate_every == 0 or step == cfg.steps):
+            history.append({"step": step, **validate(decoder)})
+            log(f"  val step {step}: {history[-1]}")
+    return history
