@@ -36,10 +36,8 @@ def encode_states(model, corpus, states: list[int], device: torch.device | None 
 def encode_rows(model, corpus, rows: list[int], device: torch.device, progress: bool = True) -> torch.Tensor:
     """Frozen-encoder means (G, Z) indexed by geometry row: the given rows from their stored samples,
     the other rows 0."""
-    pts, vals = corpus.arrays["sdf_points"], corpus.arrays["sdf_values"]
     out = torch.zeros(corpus.manifest["n_geometries"], model.cfg.latent)
-    mu = encode_sample_sets(model, rows, lambda r: (np.asarray(pts[r]), np.asarray(vals[r])), device, progress,
-                            desc="encoding states")
+    mu = encode_sample_sets(model, rows, corpus.sdf_of_row, device, progress, desc="encoding states")
     if len(rows):
         out[rows] = torch.from_numpy(mu)
     return out
