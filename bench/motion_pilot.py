@@ -26,6 +26,8 @@ def main() -> None:
     ap.add_argument("--hidden", type=int, default=128)
     ap.add_argument("--train-persons", type=int, default=0, help="0: all")
     ap.add_argument("--poses", default="body", help="body: every single body pose; broad: the 12 evaluated")
+    ap.add_argument("--world", action="store_true", help="also world-axis rotation and translation outputs")
+    ap.add_argument("--no-mu", action="store_true", help="the condition does not read mu_src (an ablation)")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
     from latent_model.analysis.metrics import mesh_errors
@@ -53,12 +55,15 @@ def main() -> None:
     val = c.split_indices("val")
     t = time.perf_counter()
     table = DeltaTable(model, c, train + val, train, poses, torch.device("cpu"))
-    cache = CharacterCache(c)
+    from latent_model.config import data_root
+
+    cache = CharacterCache(c, data_root() / "cache" / "surface")
     for i in train + val:
         cache.get(i)
     print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
-    decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden)
+    decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
+                            read_mu=not args.no_mu)
 
     def validate(dec) -> dict:
         out: dict[str, list] = {}

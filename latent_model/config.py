@@ -60,6 +60,28 @@ class PoseFieldsConfig:
 
 
 @dataclass(frozen=True)
+class MotionDecoderConfig:
+    """Decoder v2 (nn/motion_decoder.py), trained after the fields in Phase B (train/motion.py). Off in the
+    shipped (corpus v3) model."""
+
+    enabled: bool = False  # build and train it; Transfer then predicts `kinds` with it
+    kinds: tuple[PairKind, ...] = ("neutral_to_pose",)  # pair kinds it predicts at inference
+    hidden: int = 128  # per-vertex MLP width
+    cond: int = 256  # width of the condition (mu_src, delta direction, pair kind)
+    layers: int = 3  # hidden layers, each FiLM-modulated by the condition
+    world: bool = True  # also a rotation and translation in world axes (the torso has no limb axis)
+    steps: int = 4000  # training steps
+    batch: int = 16  # pairs per step
+    vertices: int = 1024  # vertices per pair per step (half where the pair moves the surface)
+    lr: float = 1e-3  # learning rate (cosine decay to 5 %)
+    mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
+
+    def __post_init__(self) -> None:
+        for k in self.kinds:
+            check_pair_kind(k)
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """Sizes of the encoder, SDF decoder and heads (Phase A) and the Phase B parts."""
 
@@ -75,6 +97,7 @@ class ModelConfig:
     n_poses: int = 81  # poses of the corpus (pose classifier classes, prototype slots)
     decoder: VertexDecoderConfig = field(default_factory=VertexDecoderConfig)
     fields: PoseFieldsConfig = field(default_factory=PoseFieldsConfig)
+    motion: MotionDecoderConfig = field(default_factory=MotionDecoderConfig)
 
     @property
     def n_pair_kinds(self) -> int:
@@ -82,7 +105,7 @@ class ModelConfig:
 
     def phase_a_dict(self) -> dict:
         """The fields Phase A depends on (a Phase B change does not force re-training Phase A)."""
-        return {k: v for k, v in dataclasses.asdict(self).items() if k not in ("decoder", "fields")}
+        return {k: v for k, v in dataclasses.asdict(self).items() if k not in ("decoder", "fields", "motion")}
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,11 @@ standardised latent space), ``identity:<id>`` (a chosen training identity's delt
 (the target's own delta; an upper bound for analysis, needs the true target's latent). The CLI,
 the evaluation, the tests and the explorer all call `Transfer.predict`.
 
-What runs depends on the pair kind: the kinds in `PoseFieldsConfig.only_kinds` (`neutral_to_pose`
-in the shipped model) are predicted by the closed-form pose fields alone, from the mesh's positions
-and the delta; the other kinds by the vertex decoder network, which also reads the mesh's latent,
-normals and neighbourhoods. A `PreparedMesh` computes each of those only when something reads it.
+What runs depends on the pair kind: a model with the motion decoder (decoder v2, `MotionDecoderConfig`)
+predicts its kinds with it, from the mesh's latent, normals and surface features; otherwise the kinds in
+`PoseFieldsConfig.only_kinds` (`neutral_to_pose` in the shipped model) are predicted by the closed-form
+pose fields alone, from the mesh's positions and the delta; the other kinds by the vertex decoder
+network, which also reads the mesh's latent, normals and neighbourhoods. A `PreparedMesh` computes each of those only when something reads it.
 """
 from __future__ import annotations
 
@@ -65,13 +66,20 @@ class PreparedMesh:
         return vertex_normals(self.vertices, self.faces)
 
     @cached_property
+    def surface(self):
+        """`surface.SurfaceFeatures`: geodesic coordinates, limb frames, medial points (the motion decoder's)."""
+        from latent_model.surface import surface_features
+
+        return surface_features(self.vertices, self.faces)
+
+    @cached_property
     def knn(self) -> np.ndarray:
         """(V, K) each vertex's nearest other vertices (the decoder's refinement neighbourhoods)."""
         return knn_graph(self.vertices, self._knn_k)
 
     def derived(self) -> set[str]:
-        """Which of mu, normals, knn have been computed (or given)."""
-        return {k for k in ("mu", "normals", "knn") if k in self.__dict__}
+        """Which of mu, normals, knn, surface have been computed (or given)."""
+        return {k for k in ("mu", "normals", "knn", "surface") if k in self.__dict__}
 
     def cache(self, name: str, device: torch.device, make: Callable[[], object]):
         """A per-device cache entry (`make()` on first use)."""
@@ -164,8 +172,11 @@ class Transfer:
         return x * x * (3.0 - 2.0 * x), signal
 
     def predicts_with(self, kind: PairKind) -> Predictor:
-        """"pose_fields" or "network": what predicts this pair kind."""
-        return "pose_fields" if self.model.pose_fields.predicts_alone(check_pair_kind(kind)) else "network"
+        """"motion", "pose_fields" or "network": what predicts this pair kind."""
+        check_pair_kind(kind)
+        if self.model.motion_decoder is not None and kind in self.model.cfg.motion.kinds:
+            return "motion"
+        return "pose_fields" if self.model.pose_fields.predicts_alone(kind) else "network"
 
     def predict(self, mesh: PreparedMesh, pose: str, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
                 kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
@@ -196,8 +207,12 @@ class Transfer:
         direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(dev))
         r = r * magnitude
         k = torch.tensor([PAIR_KINDS.index(kind)], device=dev)
-        field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         predictor = self.predicts_with(kind)
+        if predictor == "motion":
+            raw = self._motion(mesh, direction, r, k)
+            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+            return TransferOutput(gated, raw, gate, signal, label, predictor)
+        field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         if predictor == "pose_fields":
             raw_t = v + field_disp
         else:
@@ -210,3 +225,18 @@ class Transfer:
         raw = raw_t[0].cpu().numpy()
         gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
         return TransferOutput(gated, raw, gate, signal, label, predictor)
+
+    def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> np.ndarray:
+        """(V, 3) the motion decoder's prediction on the mesh (its surface features read once per mesh)."""
+        dec, dev = self.model.motion_decoder, self.device
+
+        def tensors() -> dict[str, torch.Tensor]:
+            sf = mesh.surface
+            t = lambda a: torch.from_numpy(np.asarray(a, np.float32))[None].to(dev)  # noqa: E731
+            return {"v_src": t(mesh.vertices), "coords": t(sf.coords), "frames": t(sf.frames),
+                    "normals": t(mesh.normals), "medial": t(sf.medial)}
+
+        x = mesh.cache("motion", dev, tensors)
+        mu = torch.from_numpy(mesh.mu)[None].to(dev)
+        out = dec(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k)
+        return out[0].cpu().numpy()

@@ -35,6 +35,7 @@ Strategy = str
 Predictor = Literal[
     "pose_fields",  # the closed-form pose fields alone (nn/pose_fields.py)
     "network",  # the vertex decoder network (nn/vertex_decoder.py), which reads the fields too
+    "motion",  # the motion decoder (nn/motion_decoder.py): a per-vertex rigid motion in the limb's frame
 ]
 PoseGroup = Literal["body", "finger", "face", "mixed"]
 ColourBy = Literal["error", "displacement"]  # what colours the explorer's prediction view

@@ -13,6 +13,7 @@ LAYERS = {
     "latent_model.errors": (),
     "latent_model.atomic": (),
     "latent_model.runtime": (),
+    "latent_model.surface": (),  # geometry of any mesh: numpy, scipy, libigl only
     "latent_model.render": (),
     "latent_model.corpus": ("latent_model.corpus", "latent_model.types", "latent_model.atomic", "latent_model.errors",
                             "latent_model.render"),
@@ -25,7 +26,8 @@ INFERENCE_ORDER = ("latent_model.encoding", "latent_model.checkpoint", "latent_m
 # inference: what a user's prediction runs through; it never imports training code
 INFERENCE = ("latent_model.checkpoint", "latent_model.legacy", "latent_model.bank", "latent_model.encoding",
              "latent_model.transfer", "latent_model.predict", "latent_model.shipped", "latent_model.meshio",
-             "latent_model.analysis", "latent_model.nn", "latent_model.corpus", "latent_model.config", "explorer")
+             "latent_model.analysis", "latent_model.nn", "latent_model.corpus", "latent_model.config",
+             "latent_model.surface", "explorer")
 
 
 def project_imports() -> dict[str, set[str]]:

@@ -7,6 +7,7 @@ from torch import nn
 from latent_model.config import ModelConfig
 from latent_model.nn.encoder import SdfSetEncoder
 from latent_model.nn.heads import CharacterClassifier, PoseClassifier
+from latent_model.nn.motion_decoder import MotionDecoder
 from latent_model.nn.pose_fields import PoseFields
 from latent_model.nn.sdf_decoder import SdfDecoder
 from latent_model.nn.vertex_decoder import VertexDecoder
@@ -24,6 +25,10 @@ class LatentReRig(nn.Module):
         self.pose_head = PoseClassifier(cfg)
         self.vertex_decoder = VertexDecoder(cfg)
         self.pose_fields = PoseFields(cfg)
+        m = cfg.motion
+        # only when enabled: checkpoints without it (the shipped one) keep their exact key set
+        self.motion_decoder = MotionDecoder(cfg.latent, cfg.n_pair_kinds, m.hidden, m.cond, m.layers, m.world) \
+            if m.enabled else None
 
     def phase_a_parameters(self):
         for part in PHASE_A_PARTS:

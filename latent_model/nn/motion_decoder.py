@@ -5,7 +5,7 @@ normal and medial point in its limb frame F) and the condition (mu_src, the delt
 kind), an MLP with FiLM predicts, in F: a rotation vector w, a pivot offset o from the vertex's medial
 point m, and a translation u. With r the delta's length in units of the training deltas' mean length:
 
-    p = m + F o,    x' = p + R(r F w) (x - p) + r F u
+    p = m + F o,    x' = x + (R(r F w) - I) (x - p) + r F u    (= p + R (x - p) + r F u)
 
 - in the limb frame, the same motion is the same numbers whatever the rest pose: a forearm standing in a
   T-pose turns about its elbow as it does in an A-pose;
@@ -52,7 +52,8 @@ def coord_features(coords: torch.Tensor) -> torch.Tensor:
 class MotionDecoder(nn.Module):
     """(surface features of V_src, mu_src, delta direction, r, kind) -> V_hat."""
 
-    def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3) -> None:
+    def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
+                 world: bool = False, read_mu: bool = True) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
@@ -63,14 +64,19 @@ class MotionDecoder(nn.Module):
         self.film = nn.Linear(cond, 2 * hidden * (layers + 1))
         nn.init.zeros_(self.film.weight)
         nn.init.zeros_(self.film.bias)
-        self.out = nn.Linear(hidden, 9)
+        self.read_mu = read_mu  # False: the condition sees zeros for mu_src (an ablation: bench/motion_pilot.py)
+        self.world = world  # also a rotation and translation in world axes (the torso has no limb axis)
+        self.out = nn.Linear(hidden, 15 if world else 9)
         nn.init.normal_(self.out.weight, std=1e-3)
         nn.init.zeros_(self.out.bias)
         self.n_layers = layers
+        # mean length of the training deltas: r is read in these units (set by train/motion.py)
+        self.register_buffer("delta_scale", torch.ones(()))
 
     def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
         """(B, Z), (B, Z), (B,) -> (B, C)."""
-        return self.cond(torch.cat([mu_src, delta_dir * self.dir_gain, self.kind_emb(kind)], dim=-1))
+        mu = mu_src if self.read_mu else torch.zeros_like(mu_src)
+        return self.cond(torch.cat([mu, delta_dir * self.dir_gain, self.kind_emb(kind)], dim=-1))
 
     def motion(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor, medial_offset: torch.Tensor,
                c: torch.Tensor) -> torch.Tensor:
@@ -98,6 +104,8 @@ class MotionDecoder(nn.Module):
         to_world = lambda x: torch.einsum("bnij,bnj->bni", frames, x)  # noqa: E731  F x
         r = r.reshape(-1, 1, 1)
         w, o, u = to_world(m[..., 0:3]) * r, to_world(m[..., 3:6]) * 0.1, to_world(m[..., 6:9]) * 0.1 * r
+        if self.world:
+            w, u = w + m[..., 9:12] * r, u + m[..., 12:15] * 0.1 * r
         pivot = medial + o
-        R = axis_angle_to_matrix(w)
-        return pivot + torch.einsum("bnij,bnj->bni", R, v_src - pivot) + u
+        turn = axis_angle_to_matrix(w) - torch.eye(3, dtype=w.dtype, device=w.device)  # exactly 0 at r = 0
+        return v_src + torch.einsum("bnij,bnj->bni", turn, v_src - pivot) + u

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from latent_model.atomic import atomic_write
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
 from latent_model.nn.motion_decoder import MotionDecoder
@@ -32,17 +34,28 @@ class MotionTrainConfig:
 
 
 class CharacterCache:
-    """Per character: neutral vertices, normals and surface features (computed on first use)."""
+    """Per character: neutral vertices, normals and surface features (computed on first use; kept in
+    `directory`, keyed by the corpus digest, when one is given: ~1 s per character to compute)."""
 
-    def __init__(self, corpus: Corpus) -> None:
+    def __init__(self, corpus: Corpus, directory: Path | None = None) -> None:
         self.c = corpus
+        self.dir = directory
         self._f: dict[int, tuple[np.ndarray, np.ndarray, SurfaceFeatures]] = {}
 
     def get(self, i: int) -> tuple[np.ndarray, np.ndarray, SurfaceFeatures]:
         if i not in self._f:
             s = self.c.state(i, None, "neutral")
             v = self.c.vertices(s)
-            self._f[i] = (v, self.c.normals(s), surface_features(v, self.c.faces))
+            path = None if self.dir is None else self.dir / f"{self.c.manifest['config_digest']}_{i}.npz"
+            if path is not None and path.exists():
+                z = np.load(path)
+                sf = SurfaceFeatures(z["coords"], z["frames"], z["medial"], {})
+            else:
+                sf = surface_features(v, self.c.faces)
+                if path is not None:
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    atomic_write(path, lambda tmp: np.savez(tmp, coords=sf.coords, frames=sf.frames, medial=sf.medial))
+            self._f[i] = (v, self.c.normals(s), sf)
         return self._f[i]
 
 
@@ -122,4 +135,24 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
         if validate is not None and (step % validate_every == 0 or step == cfg.steps):
             history.append({"step": step, **validate(decoder)})
             log(f"  val step {step}: {history[-1]}")
+    return history
+
+
+def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: torch.device,
+                       progress: bool = True) -> list[dict]:
+    """Phase B's motion-decoder part (encoder frozen): every pose of the corpus, neutral_to_pose pairs of
+    the training characters; sets the decoder's delta scale. Surface features cached in run_dir."""
+    m = preset.model.motion
+    dec = model.motion_decoder
+    train_ids = corpus.split_indices("train")
+    poses = tuple(corpus.poses)
+    table = DeltaTable(model, corpus, train_ids, train_ids, poses, device)
+    dec.delta_scale.fill_(table.scale)
+    cache = CharacterCache(corpus, Path(run_dir) / "surface")
+    cfg = MotionTrainConfig(steps=m.steps, batch=m.batch, vertices=m.vertices, lr=m.lr, mean_prob=m.mean_prob,
+                            seed=preset.train.seed + 5000)
+    dec.train()
+    history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, cfg,
+                                   log=print if progress else (lambda *_: None))
+    dec.eval()
     return history

@@ -129,7 +129,12 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
     net = PhaseBNet(model, preset, corpus.faces, mu_rows).to(device)
     spec = PhaseSpec("b", steps or preset.train.b_steps, preset.train.b_lr, net,
                      list(model.vertex_decoder.parameters()), sampler.sample, get, put)
-    return run_phase(spec, model, preset, run_dir, device, fresh=fresh, progress=progress)
+    out = run_phase(spec, model, preset, run_dir, device, fresh=fresh, progress=progress)
+    if model.motion_decoder is not None and rank == 0:
+        from latent_model.train.motion import train_motion_phase
+
+        train_motion_phase(model, preset, corpus, run_dir, device, progress=progress)
+    return out
 
 
 def train(preset: Preset, corpus: Corpus, run_dir: Path, phases: str = "all", device: torch.device | None = None,
