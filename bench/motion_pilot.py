@@ -37,8 +37,8 @@ def main() -> None:
     from latent_model.corpus.store import Corpus
     from latent_model.nn.motion_decoder import MotionDecoder
     from latent_model.shipped import ShippedPaths
-    from latent_model.train.motion import (CharacterCache, DeltaTable, MotionTrainConfig, pair_inputs, predict,
-                                           train_motion_decoder)
+    from latent_model.config import MotionDecoderConfig
+    from latent_model.train.motion import CharacterCache, DeltaTable, pair_inputs, predict, train_motion_decoder
     from latent_model.types import FINAL, PAIR_KINDS
 
     torch.set_num_threads(2)
@@ -76,9 +76,9 @@ def main() -> None:
                 out.setdefault(group, []).append((e["explained"], e["leak_mm"]))
         return {g: f"{np.mean([x[0] for x in r]):.3f} / {np.mean([x[1] for x in r]):.2f} mm" for g, r in out.items()}
 
-    cfg = MotionTrainConfig(steps=args.steps, batch=args.batch, vertices=args.vertices)
+    cfg = MotionDecoderConfig(steps=args.steps, batch=args.batch, vertices=args.vertices)
     t = time.perf_counter()
-    train_motion_decoder(decoder, c, cache, table, train, poses, cfg, validate=validate,
+    train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
                          validate_every=max(args.steps // 3, 1))
     print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
     print(f"{'pose':20s} {'bind':>16s} {'val rests':>16s}")

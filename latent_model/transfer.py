@@ -202,7 +202,6 @@ class Transfer:
         if magnitude == 0:
             gate = 0.0
         dev = self.device
-        fields = self.model.pose_fields
         v = torch.from_numpy(mesh.vertices)[None].to(dev)
         direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(dev))
         r = r * magnitude
@@ -210,8 +209,15 @@ class Transfer:
         predictor = self.predicts_with(kind)
         if predictor == "motion":
             raw = self._motion(mesh, direction, r, k)
-            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
-            return TransferOutput(gated, raw, gate, signal, label, predictor)
+        else:
+            raw = self._fields_or_network(mesh, predictor, v, direction, r, k)
+        gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+        return TransferOutput(gated, raw, gate, signal, label, predictor)
+
+    def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, v: torch.Tensor, direction: torch.Tensor,
+                           r: torch.Tensor, k: torch.Tensor) -> np.ndarray:
+        """(V, 3) the pose fields' prediction, or the network's (which reads the fields too)."""
+        dev, fields = self.device, self.model.pose_fields
         field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         if predictor == "pose_fields":
             raw_t = v + field_disp
@@ -222,9 +228,7 @@ class Transfer:
             raw_t = vd(v, n, torch.from_numpy(mesh.mu)[None].to(dev), direction, r, k,
                        torch.from_numpy(mesh.knn)[None].to(dev), fields.weights(direction, k), field_disp,
                        features=features)["vertices"]
-        raw = raw_t[0].cpu().numpy()
-        gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
-        return TransferOutput(gated, raw, gate, signal, label, predictor)
+        return raw_t[0].cpu().numpy()
 
     def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> np.ndarray:
         """(V, 3) the motion decoder's prediction on the mesh (its surface features read once per mesh)."""

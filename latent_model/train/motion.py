@@ -9,28 +9,18 @@ Surface features are computed once per character from its neutral mesh.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from latent_model.atomic import atomic_write
+from latent_model.config import MotionDecoderConfig
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
 from latent_model.nn.motion_decoder import MotionDecoder
 from latent_model.surface import SurfaceFeatures, surface_features
 from latent_model.types import FINAL, PAIR_KINDS
-
-
-@dataclass
-class MotionTrainConfig:
-    steps: int = 3000
-    batch: int = 16
-    vertices: int = 1024
-    lr: float = 1e-3
-    mean_prob: float = 0.5
-    seed: int = 0
 
 
 class CharacterCache:
@@ -99,10 +89,10 @@ def predict(decoder: MotionDecoder, inputs: dict) -> np.ndarray:
 
 
 def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: CharacterCache, table: DeltaTable,
-                         train_ids: list[int], poses: tuple[str, ...], cfg: MotionTrainConfig,
+                         train_ids: list[int], poses: tuple[str, ...], cfg: MotionDecoderConfig, seed: int,
                          log=print, validate=None, validate_every: int = 500) -> list[dict]:
-    rng = np.random.default_rng(cfg.seed)
-    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
     opt = torch.optim.Adam(decoder.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps, eta_min=cfg.lr * 0.05)
     pairs = [(i, p) for i in train_ids for p in poses]
@@ -149,10 +139,8 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
     table = DeltaTable(model, corpus, train_ids, train_ids, poses, device)
     dec.delta_scale.fill_(table.scale)
     cache = CharacterCache(corpus, Path(run_dir) / "surface")
-    cfg = MotionTrainConfig(steps=m.steps, batch=m.batch, vertices=m.vertices, lr=m.lr, mean_prob=m.mean_prob,
-                            seed=preset.train.seed + 5000)
     dec.train()
-    history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, cfg,
+    history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, m, preset.train.seed + 5000,
                                    log=print if progress else (lambda *_: None))
     dec.eval()
     return history
