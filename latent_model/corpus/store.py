@@ -20,6 +20,7 @@ atomically (temp file + rename); a build lives in ``DIR.partial`` until complete
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -110,8 +111,6 @@ class RowFile:
         self._fd: tuple[int, int] | None = None  # (pid, fd)
 
     def row(self, r: int) -> np.ndarray:
-        import os
-
         if self._fd is None or self._fd[0] != os.getpid():
             self._fd = (os.getpid(), os.open(self.path, os.O_RDONLY))
         buf = os.pread(self._fd[1], self.row_bytes, self.offset + int(r) * self.row_bytes)
@@ -122,9 +121,7 @@ class RowFile:
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_fd": None}
 
-    def __del__(self) -> None:
-        import os
-
+    def __del__(self) -> None:  # os imported at module level: a lazy import fails at interpreter exit
         if self._fd is not None and self._fd[0] == os.getpid():
             os.close(self._fd[1])
 
