@@ -27,10 +27,12 @@ def main() -> None:
     ap.add_argument("--train-persons", type=int, default=0, help="0: all")
     ap.add_argument("--poses", default="body", help="body: every single body pose; broad: the 12 evaluated")
     ap.add_argument("--world", action="store_true", help="also world-axis rotation and translation outputs")
-    ap.add_argument("--no-mu", action="store_true", help="the condition does not read mu_src (an ablation)")
+    ap.add_argument("--mu-dims", type=int, default=8, help="principal components of mu_src read (0: none)")
+    ap.add_argument("--mu-noise", type=float, default=1.0)
+    ap.add_argument("--edge", type=float, default=None, help="weight of the neighbour term (default: the config's)")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
-    from latent_model.analysis.metrics import mesh_errors
+    from latent_model.analysis.metrics import edge_strain, mesh_errors
     from latent_model.checkpoint import load_checkpoint
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.poses import POSES
@@ -63,7 +65,8 @@ def main() -> None:
     print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
-                            read_mu=not args.no_mu)
+                            mu_dims=args.mu_dims, mu_noise=args.mu_noise)
+    decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train])).float())
 
     def validate(dec) -> dict:
         out: dict[str, list] = {}
@@ -76,21 +79,28 @@ def main() -> None:
                 out.setdefault(group, []).append((e["explained"], e["leak_mm"]))
         return {g: f"{np.mean([x[0] for x in r]):.3f} / {np.mean([x[1] for x in r]):.2f} mm" for g, r in out.items()}
 
-    cfg = MotionDecoderConfig(steps=args.steps, batch=args.batch, vertices=args.vertices)
+    extra = {} if args.edge is None else {"edge": args.edge}
+    cfg = MotionDecoderConfig(steps=args.steps, batch=args.batch, vertices=args.vertices, **extra)
     t = time.perf_counter()
     train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
                          validate_every=max(args.steps // 3, 1))
     print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
-    print(f"{'pose':20s} {'bind':>16s} {'val rests':>16s}")
+    print(f"{'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}")
+    allc: dict[str, list] = {}
     for p in broad:
         cells = {}
         for i in val:
             v = cache.get(i)[0]
-            e = mesh_errors(predict(decoder, pair_inputs(cache, table, i, p, table.mean[p])),
-                            c.vertices(c.state(i, p, FINAL)), v)
+            pred, truth = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p])), c.vertices(c.state(i, p, FINAL))
+            e = {**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)}
             cells.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
+            allc.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
         print(f"{p:20s}" + "".join(f" {np.mean([e['explained'] for e in cells[g]]):7.2f} / "
-                                   f"{np.mean([e['leak_mm'] for e in cells[g]]):5.2f}" for g in ("bind", "rest")))
+                                   f"{np.mean([e['leak_mm'] for e in cells[g]]):5.2f} / "
+                                   f"{np.mean([e['strain'] for e in cells[g]]):5.1f}" for g in ("bind", "rest")))
+    print(f"{'mean':20s}" + "".join(f" {np.mean([e['explained'] for e in allc[g]]):7.3f} / "
+                                    f"{np.mean([e['leak_mm'] for e in allc[g]]):5.2f} / "
+                                    f"{np.mean([e['strain'] for e in allc[g]]):5.1f}" for g in ("bind", "rest")))
     if args.save:
         torch.save(decoder.state_dict(), args.save)
 

@@ -44,6 +44,9 @@ class LatentBank:
     # median standardised distance between the means of two independent SDF samplings of the
     # same geometry: how long a delta made of sampling noise alone is (0 = not measured)
     noise_floor: float = 0.0
+    # out-of-distribution threshold: the largest `distance_to_training` of a validation character's
+    # neutral state (characters the model never trained on but that it serves; 0 = not calibrated)
+    ood_threshold: float = 0.0
     _source_index: dict = field(default_factory=dict, repr=False, compare=False)  # (kind, pose) -> NearestNeighbors
 
     def standardise(self, mu: np.ndarray) -> np.ndarray:
@@ -77,6 +80,14 @@ class LatentBank:
         k = int(index.kneighbors(self.standardise(np.asarray(mu_source))[None], return_distance=False)[0, 0])
         return ids[k], d[k]
 
+    def distance_to_training(self, mu: np.ndarray) -> float:
+        """Standardised distance from a latent (Z,) to the nearest training state of the bank."""
+        x = self.standardise(np.asarray(mu, np.float64))
+        if "_std_mu" not in self._source_index:
+            self._source_index["_std_mu"] = self.standardise(self.mu.astype(np.float64))
+        rows = self._source_index["_std_mu"]
+        return float(np.sqrt(max(float(((rows - x) ** 2).sum(axis=1).min()), 0.0)))
+
     def identity_delta(self, kind: str, pose: str, identity: str) -> np.ndarray:
         ids, d = self.delta(kind, pose)
         if identity not in ids:
@@ -100,7 +111,8 @@ class LatentBank:
             tensors[f"tgt{n}"] = np.asarray(tgt, np.int32)
             index.append({"kind": kind, "pose": pose, "ids": ids})
         meta = {"format": str(BANK_FORMAT), "keys": json.dumps(self.keys), "index": json.dumps(index),
-                "model_digest": self.model_digest, "noise_floor": repr(float(self.noise_floor))}
+                "model_digest": self.model_digest, "noise_floor": repr(float(self.noise_floor)),
+                "ood_threshold": repr(float(self.ood_threshold))}
         atomic_write(path, lambda tmp: save_file(tensors, str(tmp), metadata=meta))
 
     @staticmethod
@@ -128,7 +140,8 @@ class LatentBank:
             sources[key] = mu[src]
             pair_index[key] = (src, tgt)
         return LatentBank(mu, json.loads(meta["keys"]), t["mean"], t["scale"], deltas, sources,
-                          meta.get("model_digest", ""), pair_index, float(meta.get("noise_floor", 0.0)))
+                          meta.get("model_digest", ""), pair_index, float(meta.get("noise_floor", 0.0)),
+                          float(meta.get("ood_threshold", 0.0)))
 
 
 def model_digest(model: torch.nn.Module) -> str:
@@ -175,7 +188,19 @@ def build_bank(model, corpus: Corpus, device: torch.device | None = None, progre
         pair_index[key] = (si, ti)
     bank = LatentBank(mu, keys, mean, scale, deltas, sources, model_digest(model), pair_index)
     bank.noise_floor = measure_noise_floor(model, corpus, bank, device, progress=progress)
+    bank.ood_threshold = calibrate_ood_threshold(model, corpus, bank, device, progress=progress)
     return bank
+
+
+def calibrate_ood_threshold(model, corpus: Corpus, bank: LatentBank, device: torch.device | None = None,
+                            progress: bool = False) -> float:
+    """The largest distance to the training states of any validation character's neutral state (0 when
+    the corpus has no validation split): a mesh farther than that is unlike anything validated."""
+    val = corpus.split_indices("val")
+    if not val:
+        return 0.0
+    mu = encode_states(model, corpus, [corpus.state(i, None, "neutral") for i in val], device, progress=progress)
+    return float(max(bank.distance_to_training(m) for m in mu))
 
 
 NOISE_FLOOR_IDENTITIES = 32

@@ -375,6 +375,10 @@ def build_parser() -> argparse.ArgumentParser:
     pr = sub.add_parser("predict", help="deform your own mesh file with a pose (the Transfer API)")
     predict.add_arguments(pr)
     pr.set_defaults(func=predict.run_cli)
+
+    tr = sub.add_parser("transfer", help="deform your mesh B as an example pair A -> A1 deforms A (the Transfer API)")
+    predict.add_transfer_arguments(tr)
+    tr.set_defaults(func=predict.run_transfer_cli)
     return ap
 
 

@@ -70,11 +70,15 @@ class MotionDecoderConfig:
     cond: int = 256  # width of the condition (mu_src, delta direction, pair kind)
     layers: int = 3  # hidden layers, each FiLM-modulated by the condition
     world: bool = True  # also a rotation and translation in world axes (the torso has no limb axis)
+    mu_dims: int = 8  # mu_src is read through this many whitened principal components (0: not read)
+    mu_noise: float = 1.0  # std of the noise on them in training (in their std units)
     steps: int = 4000  # training steps
     batch: int = 16  # pairs per step
     vertices: int = 1024  # vertices per pair per step (half where the pair moves the surface)
     lr: float = 1e-3  # learning rate (cosine decay to 5 %)
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
+    edge: float = 5.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
+    edge_rings: int = 3  # a vertex's partner in that term is within this many edges
 
     def __post_init__(self) -> None:
         for k in self.kinds:

@@ -284,12 +284,14 @@ def sdf_shell_faces(vertices: np.ndarray, faces: np.ndarray, min_area_fraction: 
 
 def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up: UpAxis = "auto",
                 units: Units = "auto", placement: str = "auto", source_path: Path | None = None,
-                source_text: str | None = None) -> UserMesh:
-    """A UserMesh from arrays in some user frame (see `detect_frame`)."""
+                source_text: str | None = None, frame: Frame | None = None) -> UserMesh:
+    """A UserMesh from arrays in some user frame (see `detect_frame`; `frame` given: that one, as for the
+    posed mesh of an example pair, which must stay where its neutral is)."""
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3) if np.size(faces) else np.zeros((0, 3), np.int64)
     _check(name, v, f)
-    frame = detect_frame(v, up, units, name, placement)
+    if frame is None:
+        frame = detect_frame(v, up, units, name, placement)
     wv, wf, inv = weld(v, f)
     keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
     wf = wf[keep]
@@ -299,11 +301,36 @@ def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up:
     return UserMesh(name, mv, wf, sdf_shell_faces(mv.astype(np.float64), wf), frame, inv, f, source_path, source_text)
 
 
-def load_mesh(path: str | Path, up: UpAxis = "auto", units: Units = "auto", placement: str = "auto") -> UserMesh:
-    """Read a mesh file (OBJ, PLY, STL, GLB/GLTF, OFF) and normalise it into the model frame."""
+def load_mesh(path: str | Path, up: UpAxis = "auto", units: Units = "auto", placement: str = "auto",
+              frame: Frame | None = None) -> UserMesh:
+    """Read a mesh file (OBJ, PLY, STL, GLB/GLTF, OFF) and normalise it into the model frame (or `frame`)."""
     path = Path(path)
     v, f, text = read_file(path)
-    return from_arrays(v, f, path.name, up, units, placement, path, text)
+    return from_arrays(v, f, path.name, up, units, placement, path, text, frame)
+
+
+def load_example_pair(neutral: str | Path, posed: str | Path, up: UpAxis = "auto",
+                      units: Units = "auto") -> tuple[UserMesh, UserMesh]:
+    """An example pair: a character's mesh and the same mesh deformed, both in the neutral's frame
+    (the posed one's bounding box would move it). Raises MeshError unless they share one topology."""
+    a = load_mesh(neutral, up, units)
+    b = load_mesh(posed, frame=a.frame)
+    if b.n_file_vertices != a.n_file_vertices or not np.array_equal(a.file_faces, b.file_faces):
+        raise MeshError(f"{b.name} must be {a.name} deformed (the same vertices and triangles): it has "
+                        f"{b.n_file_vertices} vertices and {len(b.file_faces)} triangles, {a.name} "
+                        f"{a.n_file_vertices} and {len(a.file_faces)}. Export both from the same mesh")
+    if not np.array_equal(a.weld_inverse, b.weld_inverse):
+        # a deformation that makes welded vertices differ (or coincide): weld both the neutral's way
+        b = UserMesh(b.name, a.frame.to_model(read_file(Path(posed))[0][_first_of_welded(a.weld_inverse)]),
+                     a.faces, a.sdf_faces, a.frame, a.weld_inverse, a.file_faces, b.source_path, b.source_text)
+    return a, b
+
+
+def _first_of_welded(inverse: np.ndarray) -> np.ndarray:
+    """(W,) a file vertex of each welded vertex."""
+    first = np.full(int(inverse.max()) + 1, -1)
+    first[inverse[::-1]] = np.arange(len(inverse))[::-1]
+    return first
 
 
 def from_identity(vertices: np.ndarray, faces: np.ndarray, name: str, sdf_faces: np.ndarray | None = None) -> UserMesh:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, get_args
 import numpy as np
 
 from latent_model.errors import UserFacingError
-from latent_model.meshio import EXPORT_FORMATS, FORMATS, MeshError, UserMesh, export_mesh, load_mesh
+from latent_model.meshio import EXPORT_FORMATS, FORMATS, MeshError, UserMesh, export_mesh, load_example_pair, load_mesh
 from latent_model.types import (MAGNITUDE_RANGE, PairKind, Strategy, Units, UpAxis, check_blend, check_magnitude,
                                  check_pair_kind, parse_strategy)
 
@@ -79,7 +79,37 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: Strategy = "mean
         result = transfer.predict_detail(prepared, pose, strategy, magnitude, kind, pose_b, blend)
     except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
         raise PredictError(str(e).strip("'\"")) from None
-    return result, prepared, time.perf_counter() - t0
+    return _with_novelty(transfer, result, prepared), prepared, time.perf_counter() - t0
+
+
+def _with_novelty(transfer, result: "TransferOutput", prepared: "PreparedMesh") -> "TransferOutput":
+    """The result with the mesh's novelty filled in when the bank can judge it (encoding the mesh if needed)."""
+    from dataclasses import replace
+
+    if result.novelty is None and transfer.bank.ood_threshold > 0:
+        return replace(result, novelty=transfer.novelty(prepared))
+    return result
+
+
+def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: UserMesh, magnitude: float = 1.0,
+                          kind: PairKind = "neutral_to_pose", seed: int = 0) -> tuple["TransferOutput", dict, float]:
+    """Deform `mesh` by the deformation of the example pair (neutral -> posed, one topology): (the Transfer
+    output, the novelty of each mesh the model read by name, seconds)."""
+    try:
+        check_pair_kind(kind)
+        check_magnitude(magnitude)
+    except ValueError as e:
+        raise PredictError(f"{e} (see lrr transfer --help)") from None
+    t0 = time.perf_counter()
+    a, a1 = (transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces, seed=seed) for m in (neutral, posed))
+    delta = transfer.example_delta(a, a1)
+    target = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
+    result = _with_novelty(transfer, transfer.predict_detail(target, None, magnitude=magnitude, kind=kind, delta=delta),
+                           target)
+    novelty = {mesh.name: result.novelty}
+    if transfer.bank.ood_threshold > 0:
+        novelty[neutral.name] = transfer.novelty(a)
+    return result, novelty, time.perf_counter() - t0
 
 
 def add_arguments(p) -> None:
@@ -99,10 +129,23 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in the input's frame and units")
 
 
-def run_cli(args) -> None:
-    out = Path(args.output)
+def _check_output(out: Path) -> None:
     if out.suffix.lower() not in EXPORT_FORMATS:
         raise MeshError(f"{out}: cannot export {out.suffix or '(no extension)'}; use one of {', '.join(EXPORT_FORMATS)}")
+
+
+def _print_result(result: "TransferOutput", novelty: dict) -> None:
+    for name, n in novelty.items():
+        if n is not None and (w := n.warning(name)):
+            print(w)
+    if result.gate < 1.0:
+        print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x the latent noise floor "
+              f"(below 1.5x it carries no usable signal and the prediction keeps the source)")
+
+
+def run_cli(args) -> None:
+    out = Path(args.output)
+    _check_output(out)
     t0 = time.perf_counter()
     mesh = load_mesh(args.mesh, up=args.up, units=args.units)
     t_load = time.perf_counter() - t0
@@ -116,9 +159,38 @@ def run_cli(args) -> None:
     print(f"{mesh.summary()}")
     print(f"{what}, strategy {args.strategy} (conditioning: {label}), magnitude {args.magnitude:g}: "
           f"displacement mean {disp.mean():.1f} mm, max {disp.max():.1f} mm")
-    if result.gate < 1.0:
-        print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x the latent noise floor "
-              f"(below 1.5x it carries no usable signal and the prediction keeps the source)")
+    _print_result(result, {mesh.name: result.novelty})
     used = "its latent encoded" if "mu" in prepared.derived() else "no latent needed"
     print(f"predicted by the {result.predictor.replace('_', ' ')} ({used}); "
           f"wrote {out} (import {t_load:.2f} s, predict {t_pred:.2f} s)")
+
+
+def add_transfer_arguments(p) -> None:
+    p.add_argument("--example-neutral", required=True, help=f"a character's mesh A ({' '.join(FORMATS)})")
+    p.add_argument("--example-posed", required=True, help="the same mesh deformed, A1 (A's vertices and triangles)")
+    p.add_argument("--mesh", required=True, help="the character B to deform the same way (any topology)")
+    p.add_argument("--magnitude", type=float, default=1.0, help="scales the example's delta, in [%g, %g] (default 1)" % MAGNITUDE_RANGE)
+    p.add_argument("--kind", default="neutral_to_pose", help="pair kind of the example (default neutral_to_pose)")
+    p.add_argument("--up", default="auto", choices=get_args(UpAxis), help="up axis of the files (default: detected)")
+    p.add_argument("--units", default="auto", choices=get_args(Units), help="units of the files (default: detected)")
+    p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
+    p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
+    p.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in B's frame and units")
+
+
+def run_transfer_cli(args) -> None:
+    """`lrr transfer`: deform B as the example pair A -> A1 deforms A."""
+    out = Path(args.output)
+    _check_output(out)
+    neutral, posed = load_example_pair(args.example_neutral, args.example_posed, args.up, args.units)
+    mesh = load_mesh(args.mesh, up=args.up, units=args.units)
+    transfer = load_transfer(args.checkpoint, args.bank)
+    result, novelty, seconds = transfer_example_file(transfer, neutral, posed, mesh, args.magnitude, args.kind)
+    export_mesh(mesh, result.vertices, out)
+    example = np.linalg.norm(posed.vertices - neutral.vertices, axis=1) * 1000
+    disp = np.linalg.norm(result.vertices - mesh.vertices, axis=1) * 1000
+    print(f"example {neutral.name} -> {posed.name}: displacement mean {example.mean():.1f} mm, max {example.max():.1f} mm")
+    print(f"{mesh.summary()}")
+    print(f"magnitude {args.magnitude:g}: displacement mean {disp.mean():.1f} mm, max {disp.max():.1f} mm")
+    _print_result(result, novelty)
+    print(f"predicted by the {result.predictor.replace('_', ' ')}; wrote {out} ({seconds:.2f} s)")

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+VERSION = 2  # of what surface_features computes (caches of it are keyed by it)
 FORWARD = np.array([0.0, -1.0, 0.0])  # anny faces -Y (Z up); imported meshes are brought to this frame
 EXTREMITIES = ("head", "hand_left", "hand_right", "foot_left", "foot_right")
 
@@ -113,7 +114,7 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
     vf = sp.coo_matrix((np.repeat(area, 3), (f.ravel(), rows)), shape=(len(v), len(f))).tocsr()
     t = vf @ gf
     adj = (graph > 0).astype(np.float64)
-    adj = sp.diags(1.0 / np.maximum(adj.sum(axis=1).A1, 1)) @ (adj + sp.eye(len(v)))
+    adj = sp.diags(1.0 / (adj.sum(axis=1).A1 + 1.0)) @ (adj + sp.eye(len(v)))  # mean over self + neighbours
     for _ in range(smooth):
         t = adj @ t
     t = _fill_unreached(v, t, reached & (np.linalg.norm(t, axis=1) > 1e-12))
@@ -133,6 +134,10 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
     ring = sp.coo_matrix((np.ones(keep.sum()), (pairs.row[keep], pairs.col[keep])), shape=(len(v), len(sub))).tocsr()
     count = ring.sum(axis=1).A1
     medial = np.where(count[:, None] > 0, (ring @ v[sub]) / np.maximum(count, 1)[:, None], v)
+    # smoothed over the surface as t is: raw cross-section means jump by cm between neighbours, and a
+    # joint's pivot that jumps turns neighbouring vertices about different points (a crumpled hand)
+    for _ in range(smooth):
+        medial = adj @ medial
     return SurfaceFeatures(coords.astype(np.float32), frames.astype(np.float32), medial.astype(np.float32),
                            extremities)
 

@@ -31,7 +31,7 @@ from latent_model.nn.vertex_decoder import knn_graph
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
-__all__ = ["GATE_HI", "GATE_LO", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
+__all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
 
 # Noise gate, in units of the bank's noise floor (a delta of sampling noise alone is ~1): the
 # predicted displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
@@ -95,8 +95,30 @@ class TransferOutput:
     raw: np.ndarray  # (V, 3) the predictor's output, ungated
     gate: float  # noise gate in [0, 1] (0 also when magnitude is 0)
     signal: float  # ||standardised delta|| / noise floor (inf without a measured floor)
-    label: str  # where pose A's delta came from: "mean", an identity id or "oracle"
+    label: str  # where pose A's delta came from: "mean", an identity id, "oracle" or "example"
     predictor: Predictor  # what produced `raw`
+    novelty: "Novelty | None" = None  # how far the mesh's latent is from training (when its latent was read)
+
+
+@dataclass(frozen=True)
+class Novelty:
+    """Standardised latent distance of a mesh to the nearest training state, against the bank's
+    threshold (the farthest validation character's): beyond it, the prediction is extrapolation."""
+
+    distance: float
+    threshold: float  # 0: the bank has no calibrated threshold (no warning)
+
+    @property
+    def out_of_distribution(self) -> bool:
+        return self.threshold > 0 and self.distance > self.threshold
+
+    def warning(self, name: str = "the mesh") -> str | None:
+        """A one-line warning for the user, or None when the mesh is within the validated range."""
+        if not self.out_of_distribution:
+            return None
+        return (f"warning: {name} is out of distribution: its latent is {self.distance:.1f} from the nearest training "
+                f"state, beyond {self.threshold:.1f} (the farthest validation character); expect a poor prediction. "
+                f"Check its units, up axis and that it is one humanoid standing")
 
 
 class Transfer:
@@ -159,6 +181,19 @@ class Transfer:
         ident = s.split(":", 1)[1]
         return self.bank.identity_delta(kind, pose, ident), ident
 
+    def example_delta(self, neutral: PreparedMesh, posed: PreparedMesh) -> np.ndarray:
+        """(Z,) latent delta of an example pair (a character and the same mesh deformed): mu(posed) - mu(neutral).
+        Prepare both with the same seed: with one topology the SDF samples then move with the surface and most
+        of the sampling noise cancels in the difference."""
+        if len(neutral.vertices) != len(posed.vertices) or not np.array_equal(neutral.faces, posed.faces):
+            raise ValueError(f"the example pair must share one topology: the neutral has {len(neutral.vertices)} vertices "
+                             f"and {len(neutral.faces)} triangles, the posed {len(posed.vertices)} and {len(posed.faces)}")
+        return posed.mu - neutral.mu
+
+    def novelty(self, mesh: PreparedMesh) -> Novelty:
+        """How far the mesh's latent lies from every training state (encodes the mesh if not yet done)."""
+        return Novelty(self.bank.distance_to_training(mesh.mu), self.bank.ood_threshold)
+
     def noise_gate(self, delta: np.ndarray) -> tuple[float, float]:
         """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / the bank's
         noise floor: a delta of sampling noise alone has signal ~1 (the paper's R_cond/noise).
@@ -178,23 +213,31 @@ class Transfer:
             return "motion"
         return "pose_fields" if self.model.pose_fields.predicts_alone(kind) else "network"
 
-    def predict(self, mesh: PreparedMesh, pose: str, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
+    def predict(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
                 kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
-                oracle_target_mu: np.ndarray | None = None, oracle_target_mu_b: np.ndarray | None = None) -> np.ndarray:
+                oracle_target_mu: np.ndarray | None = None, oracle_target_mu_b: np.ndarray | None = None,
+                delta: np.ndarray | None = None) -> np.ndarray:
         """(V, 3) float32 predicted vertices (`predict_detail(...).vertices`)."""
         return self.predict_detail(mesh, pose, strategy, magnitude, kind, pose_b, blend,
-                                   oracle_target_mu, oracle_target_mu_b).vertices
+                                   oracle_target_mu, oracle_target_mu_b, delta).vertices
 
     @torch.no_grad()
-    def predict_detail(self, mesh: PreparedMesh, pose: str, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
-                       kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
-                       oracle_target_mu: np.ndarray | None = None,
-                       oracle_target_mu_b: np.ndarray | None = None) -> TransferOutput:
+    def predict_detail(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta",
+                       magnitude: float = 1.0, kind: PairKind = "neutral_to_pose", pose_b: str | None = None,
+                       blend: float = 0.0, oracle_target_mu: np.ndarray | None = None,
+                       oracle_target_mu_b: np.ndarray | None = None, delta: np.ndarray | None = None) -> TransferOutput:
         """The prediction with its parts. `blend` in [0, 1] mixes pose A's delta toward pose B's;
         `magnitude` in [0, 2] scales r_Δ (0 = no motion requested: the source exactly, 1 = as
-        conditioned, 2 = doubled). The displacement is scaled by the noise gate of the delta."""
+        conditioned, 2 = doubled). The displacement is scaled by the noise gate of the delta.
+        `delta`: pose A's raw latent delta given directly (an example pair's, `example_delta`) instead of
+        the strategy's; `pose` may then be None."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
-        d, label = self.delta(mesh, pose, strategy, kind, oracle_target_mu)
+        if delta is not None:
+            d, label = np.asarray(delta, np.float32), "example"
+        elif pose is None:
+            raise ValueError("predict needs a pose (or an example pair's delta)")
+        else:
+            d, label = self.delta(mesh, pose, strategy, kind, oracle_target_mu)
         if pose_b is not None and blend > 0:
             d_b, _ = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)
             d = (1.0 - blend) * d + blend * d_b
@@ -212,7 +255,8 @@ class Transfer:
         else:
             raw = self._fields_or_network(mesh, predictor, v, direction, r, k)
         gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
-        return TransferOutput(gated, raw, gate, signal, label, predictor)
+        novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
+        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
 
     def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, v: torch.Tensor, direction: torch.Tensor,
                            r: torch.Tensor, k: torch.Tensor) -> np.ndarray:

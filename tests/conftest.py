@@ -60,3 +60,28 @@ def untrained_model_moves():
                 prm.add_(torch.randn(prm.shape, generator=g) * 0.05)
 
     return give
+
+
+@pytest.fixture(scope="session")
+def tiny_motion(tiny_corpus, tmp_path_factory):
+    """A tiny model whose motion decoder (decoder v2) is trained through Phase B's motion part on the tiny
+    corpus (untrained encoder), its bank (no noise gate) and the Transfer on it: (transfer, preset)."""
+    import dataclasses
+
+    import torch
+
+    from latent_model.bank import build_bank
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+    from latent_model.train.motion import train_motion_phase
+    from latent_model.transfer import Transfer
+
+    p = preset("tiny")
+    motion = dataclasses.replace(p.model.motion, enabled=True, hidden=32, cond=32, steps=300, batch=4, vertices=256,
+                                 lr=3e-3)
+    p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=motion))
+    torch.manual_seed(0)
+    model = LatentReRig(p.model).eval()
+    train_motion_phase(model, p, tiny_corpus, tmp_path_factory.mktemp("motion_run"), torch.device("cpu"), progress=False)
+    bank = dataclasses.replace(build_bank(model, tiny_corpus, progress=False), noise_floor=0.0)
+    return Transfer(model, bank, tiny_corpus.config.sdf.k), p

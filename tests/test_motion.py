@@ -57,7 +57,8 @@ def test_motion_decoder_is_exact_at_zero_continuous_and_reads_its_conditioning(w
     from latent_model.nn.motion_decoder import MotionDecoder
 
     torch.manual_seed(0)
-    dec = MotionDecoder(16, 4, hidden=32, cond=32, world=world)
+    dec = MotionDecoder(16, 4, hidden=32, cond=32, world=world).eval()
+    dec.set_mu_basis(torch.randn(12, 16))  # mu_src is read through principal components of training latents
     with torch.no_grad():
         for prm in dec.parameters():
             prm.add_(torch.randn_like(prm) * 0.3)  # an untrained decoder says nothing: give it a voice
@@ -81,7 +82,7 @@ def test_a_motion_in_the_limb_frame_turns_with_the_limb():
     from latent_model.nn.motion_decoder import MotionDecoder, axis_angle_to_matrix
 
     torch.manual_seed(0)
-    dec = MotionDecoder(16, 4, hidden=32, cond=32)
+    dec = MotionDecoder(16, 4, hidden=32, cond=32).eval()
     with torch.no_grad():
         for prm in dec.parameters():
             prm.add_(torch.randn_like(prm) * 0.05)  # moderate motions (float32 Rodrigues of 1000 rad is not)

@@ -56,6 +56,20 @@ def mesh_errors(pred: np.ndarray, truth: np.ndarray, source: np.ndarray) -> dict
     }
 
 
+def edge_strain(pred: np.ndarray, truth: np.ndarray, source: np.ndarray, faces: np.ndarray,
+                moving_mm: float = 5.0) -> float:
+    """sum |pred edge length - true edge length| / sum true edge length (%) over the mesh edges whose two
+    ends truly move >= `moving_mm`: how far a prediction stretches or crumples what moves (rigid: ~0)."""
+    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
+    moved = np.linalg.norm(truth - source, axis=1) * 1000 >= moving_mm
+    e = e[moved[e[:, 0]] & moved[e[:, 1]]]
+    if not len(e):
+        return 0.0
+    lp = np.linalg.norm(pred[e[:, 0]] - pred[e[:, 1]], axis=1)
+    lt = np.linalg.norm(truth[e[:, 0]] - truth[e[:, 1]], axis=1)
+    return float(np.abs(lp - lt).sum() / max(lt.sum(), 1e-12) * 100)
+
+
 def normal_consistency(pred_normals: np.ndarray, true_normals: np.ndarray) -> float:
     """Mean cosine between predicted and true unit vertex normals."""
     return float(np.mean(np.sum(pred_normals * true_normals, axis=1)))

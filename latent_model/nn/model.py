@@ -27,7 +27,8 @@ class LatentReRig(nn.Module):
         self.pose_fields = PoseFields(cfg)
         m = cfg.motion
         # only when enabled: checkpoints without it (the shipped one) keep their exact key set
-        self.motion_decoder = MotionDecoder(cfg.latent, cfg.n_pair_kinds, m.hidden, m.cond, m.layers, m.world) \
+        self.motion_decoder = MotionDecoder(cfg.latent, cfg.n_pair_kinds, m.hidden, m.cond, m.layers, m.world,
+                                            m.mu_dims, m.mu_noise) \
             if m.enabled else None
 
     def phase_a_parameters(self):

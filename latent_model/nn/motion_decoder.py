@@ -53,18 +53,22 @@ class MotionDecoder(nn.Module):
     """(surface features of V_src, mu_src, delta direction, r, kind) -> V_hat."""
 
     def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
-                 world: bool = False, read_mu: bool = True) -> None:
+                 world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
-        self.cond = mlp([2 * latent + 16, cond, cond], final_act=True)
+        # mu_src is read through its first principal components over the training characters, whitened,
+        # clamped and noised in training: read in full, the decoder memorises the training characters
+        self.mu_dims, self.mu_noise = mu_dims, mu_noise
+        self.register_buffer("mu_mean", torch.zeros(latent))
+        self.register_buffer("mu_basis", torch.zeros(mu_dims, latent))  # (k, Z) rows: components / their std
+        self.cond = mlp([mu_dims + latent + 16, cond, cond], final_act=True)
         n_in = 6 + 12 * N_COORD_FREQ + 3 + 3
         self.inp = nn.Linear(n_in, hidden)
         self.hidden = nn.ModuleList(nn.Linear(hidden, hidden) for _ in range(layers))
         self.film = nn.Linear(cond, 2 * hidden * (layers + 1))
         nn.init.zeros_(self.film.weight)
         nn.init.zeros_(self.film.bias)
-        self.read_mu = read_mu  # False: the condition sees zeros for mu_src (an ablation: bench/motion_pilot.py)
         self.world = world  # also a rotation and translation in world axes (the torso has no limb axis)
         self.out = nn.Linear(hidden, 15 if world else 9)
         nn.init.normal_(self.out.weight, std=1e-3)
@@ -73,10 +77,26 @@ class MotionDecoder(nn.Module):
         # mean length of the training deltas: r is read in these units (set by train/motion.py)
         self.register_buffer("delta_scale", torch.ones(()))
 
+    def set_mu_basis(self, mu: torch.Tensor) -> None:
+        """Fit the mu_src read-out to the training characters' neutral latents (N, Z)."""
+        mean = mu.mean(0)
+        _, s, vt = torch.linalg.svd(mu - mean, full_matrices=False)
+        k = min(self.mu_dims, len(s))
+        std = s[:k] / max(len(mu) - 1, 1) ** 0.5
+        self.mu_mean.copy_(mean)
+        self.mu_basis.zero_()
+        self.mu_basis[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
+
+    def mu_code(self, mu_src: torch.Tensor) -> torch.Tensor:
+        """(B, Z) -> (B, k) whitened principal coordinates, clamped to +-3 (noised in training)."""
+        z = ((mu_src - self.mu_mean) @ self.mu_basis.T).clamp(-3.0, 3.0)
+        if self.training and self.mu_noise > 0:
+            z = z + torch.randn_like(z) * self.mu_noise
+        return z
+
     def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
         """(B, Z), (B, Z), (B,) -> (B, C)."""
-        mu = mu_src if self.read_mu else torch.zeros_like(mu_src)
-        return self.cond(torch.cat([mu, delta_dir * self.dir_gain, self.kind_emb(kind)], dim=-1))
+        return self.cond(torch.cat([self.mu_code(mu_src), delta_dir * self.dir_gain, self.kind_emb(kind)], dim=-1))
 
     def motion(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor, medial_offset: torch.Tensor,
                c: torch.Tensor) -> torch.Tensor:

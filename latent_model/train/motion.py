@@ -19,6 +19,7 @@ from latent_model.config import MotionDecoderConfig
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
 from latent_model.nn.motion_decoder import MotionDecoder
+from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
 from latent_model.types import FINAL, PAIR_KINDS
 
@@ -36,7 +37,7 @@ class CharacterCache:
         if i not in self._f:
             s = self.c.state(i, None, "neutral")
             v = self.c.vertices(s)
-            path = None if self.dir is None else self.dir / f"{self.c.manifest['config_digest']}_{i}.npz"
+            path = None if self.dir is None else self.dir / f"{self.c.manifest['config_digest']}_v{SURFACE_VERSION}_{i}.npz"
             if path is not None and path.exists():
                 z = np.load(path)
                 sf = SurfaceFeatures(z["coords"], z["frames"], z["medial"], {})
@@ -64,6 +65,27 @@ class DeltaTable:
         self.scale = float(np.mean([np.linalg.norm(self.delta[(i, p)]) for i in train_ids for p in poses]))
 
 
+def ring_neighbours(faces: np.ndarray, n_vertices: int, rings: int):
+    """CSR adjacency (V, V) of the vertices within `rings` edges of each vertex (itself excluded)."""
+    import scipy.sparse as sp
+
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
+    a = ((a + a.T) > 0).astype(np.float32)
+    reach = a.copy()
+    for _ in range(rings - 1):
+        reach = ((reach + reach @ a) > 0).astype(np.float32)
+    reach.setdiag(0)
+    reach.eliminate_zeros()
+    return reach.tocsr()
+
+
+def sample_neighbours(rng: np.random.Generator, reach, idx: np.ndarray) -> np.ndarray:
+    """One random neighbour (from `ring_neighbours`) of each vertex in idx (N,) -> (N,)."""
+    start, count = reach.indptr[idx], np.diff(reach.indptr)[idx]
+    return reach.indices[start + (rng.random(len(idx)) * count).astype(np.int64)]
+
+
 def _batch_tensors(rows: list[dict]) -> dict[str, torch.Tensor]:
     return {k: torch.from_numpy(np.stack([r[k] for r in rows])).float() if rows[0][k].dtype != np.int64
             else torch.from_numpy(np.stack([r[k] for r in rows])) for k in rows[0]}
@@ -81,10 +103,14 @@ def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, del
 
 
 def predict(decoder: MotionDecoder, inputs: dict) -> np.ndarray:
+    """One prediction in eval mode (no training noise), leaving the decoder's mode as it was."""
     b = _batch_tensors([inputs])
+    was = decoder.training
+    decoder.eval()
     with torch.no_grad():
         out = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
                       b["delta_dir"], b["r"], b["kind"])
+    decoder.train(was)
     return out[0].numpy()
 
 
@@ -96,6 +122,7 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
     opt = torch.optim.Adam(decoder.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps, eta_min=cfg.lr * 0.05)
     pairs = [(i, p) for i in train_ids for p in poses]
+    reach = ring_neighbours(corpus.faces, len(cache.get(train_ids[0])[0]), cfg.edge_rings) if cfg.edge else None
     history = []
     t0 = time.perf_counter()
     for step in range(1, cfg.steps + 1):
@@ -108,13 +135,21 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
             half = cfg.vertices // 2
             idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
                                   rng.integers(len(v), size=cfg.vertices - half)])
+            if reach is not None:  # a neighbour of each moving sample: the edge term's partner
+                idx = np.concatenate([idx, sample_neighbours(rng, reach, idx[:half])])
             delta = table.mean[p] if rng.random() < cfg.mean_prob else table.delta[(i, p)]
             rows.append(pair_inputs(cache, table, i, p, delta, idx))
             targets.append(tgt[idx])
         b = _batch_tensors(rows)
         pred = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
                        b["delta_dir"], b["r"], b["kind"])
-        loss = (pred - torch.from_numpy(np.stack(targets)).float()).norm(dim=-1).mean() * 1000  # mm
+        tgt = torch.from_numpy(np.stack(targets)).float()
+        loss = (pred - tgt).norm(dim=-1).mean() * 1000  # mm
+        if reach is not None:
+            # relative position of neighbours: a rigid part stays rigid (per-vertex errors alone let it crumple)
+            half, n = cfg.vertices // 2, cfg.vertices
+            rel = (pred[:, :half] - pred[:, n:]) - (tgt[:, :half] - tgt[:, n:])
+            loss = loss + cfg.edge * rel.norm(dim=-1).mean() * 1000
         opt.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(decoder.parameters(), 1.0)
@@ -138,6 +173,7 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
     poses = tuple(corpus.poses)
     table = DeltaTable(model, corpus, train_ids, train_ids, poses, device)
     dec.delta_scale.fill_(table.scale)
+    dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train_ids])).float())
     cache = CharacterCache(corpus, Path(run_dir) / "surface")
     dec.train()
     history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, m, preset.train.seed + 5000,

@@ -1,0 +1,135 @@
+"""Decoder v2 through the Transfer API on the tiny model: blends and magnitudes are continuous, the
+prediction reads the mesh's latent and geometry, an example pair conditions it (API, `lrr transfer`),
+and the out-of-distribution warning fires on meshes unlike the validation characters."""
+import numpy as np
+import pytest
+import trimesh
+
+from latent_model import meshio
+from latent_model.types import FINAL
+
+
+@pytest.fixture(scope="module")
+def held_out(tiny_corpus):
+    c = tiny_corpus
+    i = c.split_indices("test", rest="bind")[0]
+    return c, i, c.vertices(c.state(i, None, "neutral"))
+
+
+def _region_motion(pred, truth, src, region):
+    """Fraction of the true motion of `region` (bool (V,)) that the prediction makes, along the truth."""
+    t, p = (truth - src)[region], (pred - src)[region]
+    return float((p * t).sum() / max((t * t).sum(), 1e-12))
+
+
+def test_blend_is_continuous_and_moves_both_regions(tiny_motion, held_out):
+    transfer, _ = tiny_motion
+    c, i, v = held_out
+    mesh = transfer.prepare(v, c.faces, sdf_faces=c.body_faces)
+    steps = [transfer.predict(mesh, "elbowBentLf", pose_b="kneeBentLf", blend=b) for b in np.linspace(0, 1, 21)]
+    moves = np.array([np.linalg.norm(b - a, axis=1).max() for a, b in zip(steps, steps[1:])])
+    assert moves.max() <= 3.0 * np.median(moves)  # no step snaps
+    elbow, knee = (c.vertices(c.state(i, p, FINAL)) for p in ("elbowBentLf", "kneeBentLf"))
+    region = {p: np.linalg.norm(t - v, axis=1) > 0.01 for p, t in (("elbow", elbow), ("knee", knee))}
+    half = steps[10]
+    # at 0.5 both regions move, each a fair part of what its own pose moves it by the model at 1
+    for name, truth, full in (("elbow", elbow, steps[0]), ("knee", knee, steps[-1])):
+        assert _region_motion(half, truth, v, region[name]) > 0.3 * _region_motion(full, truth, v, region[name]) > 0
+
+
+def test_magnitude_is_exact_at_zero_and_continuous(tiny_motion, held_out):
+    transfer, _ = tiny_motion
+    c, _, v = held_out
+    mesh = transfer.prepare(v, c.faces, sdf_faces=c.body_faces)
+    assert np.array_equal(transfer.predict(mesh, "elbowBentLf", magnitude=0.0), mesh.vertices)
+    preds = [transfer.predict(mesh, "elbowBentLf", magnitude=m) for m in np.linspace(0, 2, 41)]
+    moves = [np.abs(b - a).max() for a, b in zip(preds, preds[1:])]
+    assert max(moves) < 4 * np.median(moves) and max(moves) > 0
+
+
+def test_the_prediction_reads_the_latent_and_the_geometry(tiny_motion, held_out):
+    transfer, _ = tiny_motion
+    c, i, v = held_out
+    mesh = transfer.prepare(v, c.faces, sdf_faces=c.body_faces)
+    base = transfer.predict(mesh, "elbowBentLf")
+    # another mu_src, same geometry
+    other_mu = transfer.prepare(v, c.faces, sdf_faces=c.body_faces, mu=mesh.mu + 0.5)
+    assert np.abs(transfer.predict(other_mu, "elbowBentLf") - base).max() > 1e-4
+    # another geometry (another character), same mu_src: the motion follows the mesh, not a template
+    j = c.split_indices("test", rest="bind")[1]
+    w = c.vertices(c.state(j, None, "neutral"))
+    other_geo = transfer.prepare(w, c.faces, sdf_faces=c.body_faces, mu=mesh.mu)
+    assert np.abs((transfer.predict(other_geo, "elbowBentLf") - w) - (base - v)).max() > 1e-3
+
+
+def test_example_pair_conditions_the_prediction(tiny_motion, held_out):
+    transfer, _ = tiny_motion
+    c, i, v = held_out
+    a = c.split_indices("test", rest="bind")[1]
+    neutral = transfer.prepare(c.vertices(c.state(a, None, "neutral")), c.faces, sdf_faces=c.body_faces)
+    posed = transfer.prepare(c.vertices(c.state(a, "elbowBentLf", FINAL)), c.faces, sdf_faces=c.body_faces)
+    delta = transfer.example_delta(neutral, posed)
+    assert np.allclose(delta, posed.mu - neutral.mu)
+    mesh = transfer.prepare(v, c.faces, sdf_faces=c.body_faces)
+    out = transfer.predict_detail(mesh, None, delta=delta)
+    assert out.label == "example" and out.predictor == "motion"
+    assert np.abs(out.vertices - v).max() > 1e-3
+    # the example's delta, not a pose name, decides: another example gives another prediction
+    knee = transfer.prepare(c.vertices(c.state(a, "kneeBentLf", FINAL)), c.faces, sdf_faces=c.body_faces)
+    assert np.abs(transfer.predict(mesh, None, delta=transfer.example_delta(neutral, knee)) - out.vertices).max() > 1e-3
+    with pytest.raises(ValueError, match="one topology"):
+        transfer.example_delta(neutral, transfer.prepare(v[:-10], c.faces[:100]))
+
+
+def test_lrr_transfer_end_to_end(tiny_motion, held_out, tmp_path, capsys):
+    from latent_model.checkpoint import save_checkpoint
+    from latent_model.cli import main
+
+    transfer, p = tiny_motion
+    c, i, v = held_out
+    ck, bk = tmp_path / "m.safetensors", tmp_path / "bank.safetensors"
+    save_checkpoint(ck, transfer.model, p, "all", 0)
+    transfer.bank.save(bk)
+    a = c.split_indices("test", rest="bind")[1]
+    # the example pair in Y-up centimetres (a DCC export); the target B in metres, Z-up, with another topology
+    to_cm = lambda x: (x.astype(np.float64) @ meshio._R_Y_UP) * 100.0  # noqa: E731
+    for name, state in (("A.obj", c.state(a, None, "neutral")), ("A1.obj", c.state(a, "elbowBentLf", FINAL))):
+        trimesh.Trimesh(to_cm(c.vertices(state)), c.faces, process=False).export(tmp_path / name)
+    sub = trimesh.Trimesh(v, c.faces, process=False).subdivide()
+    sub.export(tmp_path / "B.ply")
+    out = tmp_path / "B1.obj"
+    argv = ["transfer", "--example-neutral", tmp_path / "A.obj", "--example-posed", tmp_path / "A1.obj",
+            "--mesh", tmp_path / "B.ply", "--checkpoint", ck, "--bank", bk, "-o", out]
+    assert main([str(x) for x in argv]) == 0
+    printed = capsys.readouterr().out
+    assert "example A.obj -> A1.obj" in printed and "wrote" in printed
+    got, faces, _ = meshio.read_file(out)
+    assert got.shape == sub.vertices.shape and np.array_equal(faces, sub.faces)
+    assert np.linalg.norm(got - sub.vertices, axis=1).max() > 1e-3  # it moved B
+    # A1 of another topology: a clear error, nothing written
+    trimesh.Trimesh(to_cm(v), c.faces, process=False).subdivide().export(tmp_path / "bad.obj")
+    out2 = tmp_path / "never.obj"
+    argv[4] = tmp_path / "bad.obj"
+    argv[-1] = out2
+    assert main([str(x) for x in argv]) == 2
+    assert "must be A.obj deformed" in capsys.readouterr().err and not out2.exists()
+
+
+def test_out_of_distribution_warning(tiny_motion, tiny_corpus):
+    from latent_model.bank import calibrate_ood_threshold
+
+    transfer, _ = tiny_motion
+    c = tiny_corpus
+    bank = transfer.bank
+    bank.ood_threshold = calibrate_ood_threshold(transfer.model, c, bank)
+    assert bank.ood_threshold > 0
+    i = c.split_indices("test", rest="bind")[0]
+    v = c.vertices(c.state(i, None, "neutral"))
+    held = transfer.novelty(transfer.prepare(v, c.faces, sdf_faces=c.body_faces))
+    assert not held.out_of_distribution and held.warning() is None
+    centre = v.mean(axis=0)
+    big = transfer.novelty(transfer.prepare((v - centre) * 2.0 + centre, c.faces, sdf_faces=c.body_faces))
+    assert big.out_of_distribution and "out of distribution" in big.warning("big.obj")
+    squashed = transfer.novelty(transfer.prepare(v * np.array([2.0, 1.0, 0.5], np.float32), c.faces,
+                                                 sdf_faces=c.body_faces))
+    assert squashed.out_of_distribution
