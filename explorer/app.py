@@ -1,7 +1,8 @@
 """`lrr-explorer`: the desktop explorer.
 
-    lrr-explorer [--target id008 --pose elbowBentLf --strategy nearest --pose-b kneeBentLf --blend 0.3
-                  --magnitude 1.0 --compare --mesh my.obj --session s.json]
+    lrr-explorer [--target id008 --pose elbowBentLf --strategy nearest --pose-b kneeBentLf --blend 0.3 --view side
+                  --magnitude 1.0 --compare --mesh my.obj --session s.json
+                  --example-neutral A.obj --example-posed A1.obj]
     lrr-explorer --screenshot out.png [...]    render the window once, write the PNG and exit
 
 Needs a display (an X server; under CI `xvfb-run -a lrr-explorer ...`).
@@ -35,6 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--compare", action="store_true", help="compare mean vs nearest side by side")
     ap.add_argument("--mesh", help="open this mesh file and make it the target")
     ap.add_argument("--session", help="load a saved session (JSON)")
+    ap.add_argument("--example-neutral", help="condition on an example pair: a character's neutral mesh A")
+    ap.add_argument("--example-posed", help="... and the same mesh deformed, A1 (A's vertices and triangles)")
+    ap.add_argument("--view", default="front", choices=("front", "side"), help="camera: front (default) or side")
     ap.add_argument("--tab", type=int, default=0, choices=(0, 1, 2), help="heatmap tab to show (2 = noise floor)")
     ap.add_argument("--screenshot", help="render once, save this PNG and exit (non-zero, with the error, if anything fails)")
     ap.add_argument("--size", default="1366x768",
@@ -56,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY") and sys.platform.startswith("linux"):
         print("lrr-explorer: no display; run it on a desktop or under Xvfb: xvfb-run -a lrr-explorer ...", file=sys.stderr)
         return 2
-    from latent_model.meshio import load_mesh
+    from latent_model.meshio import load_example_pair, load_mesh
 
     from explorer.selection import Selection, read_session
 
@@ -76,6 +80,11 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"{args.mesh}: no such mesh file")
             mesh = load_mesh(args.mesh)
         saved = read_session(args.session) if args.session else None
+        example = (args.example_neutral, args.example_posed)
+        if any(example) and not all(example):
+            raise ValueError("--example-neutral and --example-posed go together (the mesh A and A deformed)")
+        if all(example):
+            load_example_pair(*example)  # a missing file or another topology fails before the model loads
     except (ValueError, OSError) as e:  # SessionError and MeshError are ValueErrors
         return _fail(str(e))
 
@@ -96,8 +105,17 @@ def main(argv: list[str] | None = None) -> int:
             win.open_path(args.mesh, mesh)
         if saved is not None:
             win.restore_session(*saved)
+        if all(example):
+            win.open_example(*example)
 
     win.loaded.connect(after_load)
+
+    def first_view(_state) -> None:  # the views frame the first mesh from the front; then the camera asked for
+        win.prediction_shown.disconnect(first_view)
+        win.views.set_view(args.view)
+
+    if args.view != "front":
+        win.prediction_shown.connect(first_view)
 
     if args.screenshot:
         out = Path(args.screenshot)
@@ -140,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
             if s.pending_selection is not None or s.selection is None or s.state.selection.target != s.selection.target:
                 return False
             if mesh is not None and not s.is_mesh(s.state.target):
+                return False
+            if all(example) and s.state.example is None:
                 return False
             return args.tab != 2 or (s.noise is not None and s.noise.target == s.state.target)
 

@@ -1,8 +1,11 @@
 """The control panel: target, pair kind, poses A/B, conditioning strategy, magnitude and blend
-sliders, display toggles and reset buttons. Emits `changed(Selection)` on every edit (the
-window makes it the session's selection); bound to a session, it shows the session's selection
-and, for the colouring box, what the prediction view shows."""
+sliders, the example pair that conditions pose A instead of a pose, display toggles and reset
+buttons. Emits `changed(Selection)` on every edit (the window makes it the session's selection);
+bound to a session, it shows the session's selection and, for the colouring box, what the
+prediction view shows."""
 from __future__ import annotations
+
+import html
 
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
@@ -21,11 +24,16 @@ NO_TRUTH_TIP = ("An opened mesh has no ground truth, so its prediction is colour
 STRATEGY_ITEMS = (*((STRATEGY_LABELS[k], k) for k in ("mean_pose_delta", "nearest_identity_delta")),
                   ("chosen identity", "identity"))
 SLIDER_STEPS = 100  # slider ticks per unit of magnitude / blend
+NO_EXAMPLE = "none: pose A and the conditioning strategy condition the prediction"
+EXAMPLE_TIP = ("Open a character's mesh A and the same mesh deformed (A1): the deformation A → A1 is transferred to "
+               "the target, scaled by the delta magnitude, in place of pose A")
+BY_EXAMPLE_TIP = "The example pair conditions pose A (clear it to choose a pose)"
 
 
 class Controls(QWidget):
     changed = Signal(object)  # Selection
     view_requested = Signal(str)  # front | side | reset
+    example_requested = Signal()  # "Condition on an example pair…": the window asks for the two files
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -63,6 +71,7 @@ class Controls(QWidget):
         form.addRow("Delta magnitude", self._row(self.magnitude, self.magnitude_label))
         form.addRow("Pose blend A→B", self._row(self.blend, self.blend_label))
         outer.addWidget(box)
+        outer.addWidget(self._example_box())
 
         disp = QGroupBox("Display", self)
         dl = QVBoxLayout(disp)
@@ -97,8 +106,34 @@ class Controls(QWidget):
         for w in (self.compare, self.wireframe):
             w.toggled.connect(self._emit)
         self.reset_sliders.clicked.connect(self.do_reset_sliders)
+        self.example_open.clicked.connect(self.example_requested)
+        self.example_clear.clicked.connect(self.clear_example)
         self._poses_by_kind: dict[str, list[str]] = {}
         self.setEnabled(False)
+
+    def _example_box(self) -> QGroupBox:
+        """The example pair: what conditions the prediction, a button to open a pair and one to clear it."""
+        box = QGroupBox("Example pair", self)
+        lay = QVBoxLayout(box)
+        self._example: str | None = None  # the selection's example pair (the session holds it)
+        self.example_label = QLabel(NO_EXAMPLE, box)
+        self.example_label.setWordWrap(True)  # a long file name wraps instead of widening the panel
+        self.example_open = QPushButton("Condition on an example pair…", box)
+        self.example_open.setToolTip(EXAMPLE_TIP)
+        self.example_clear = QPushButton("Clear", box)
+        self.example_clear.setToolTip("Back to pose A and the conditioning strategy")
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.example_open, 1)
+        buttons.addWidget(self.example_clear)
+        lay.addWidget(self.example_label)
+        lay.addLayout(buttons)
+        return box
+
+    def clear_example(self) -> None:
+        """Back to pose conditioning (the Clear button, the menu's Clear example pair)."""
+        if self._example is not None:
+            self._example = None
+            self._emit()
 
     @staticmethod
     def _row(slider: QSlider, label: QLabel) -> QWidget:
@@ -173,6 +208,11 @@ class Controls(QWidget):
         if self.displacement.isEnabled():
             self.displacement.toggle()
 
+    def toggle_compare(self) -> None:
+        """The C shortcut: like a click on the box (nothing while an example pair conditions)."""
+        if self.compare.isEnabled():
+            self.compare.toggle()
+
     def _colour_toggled(self, on: bool) -> None:
         self._colour = "displacement" if on else "error"
         self._emit()
@@ -186,8 +226,8 @@ class Controls(QWidget):
         return Selection(target=self.target.currentText(), kind=self.kind.currentText(), pose=self.pose.currentText(),
                          pose_b=None if pb in ("", NONE_POSE) else pb, blend=self.blend.value() / SLIDER_STEPS,
                          magnitude=self.magnitude.value() / SLIDER_STEPS, strategy=strat,
-                         colour=self._colour,
-                         compare=self.compare.isChecked(), wireframe=self.wireframe.isChecked())
+                         colour=self._colour, compare=self.compare.isChecked(), wireframe=self.wireframe.isChecked(),
+                         example=self._example)
 
     def show_selection(self, sel: Selection) -> None:
         """Show a selection (the session's: a loaded session, an opened mesh, a reset); emits nothing."""
@@ -212,13 +252,15 @@ class Controls(QWidget):
                 self.displacement.setChecked(sel.colour == "displacement")
             self.compare.setChecked(sel.compare)
             self.wireframe.setChecked(sel.wireframe)
+            self._example = sel.example
         finally:
             self._quiet = False
         self._emit(quiet=True)
 
     def condition_on(self, identity: str) -> None:
-        """Chosen-identity conditioning (a heatmap click)."""
-        if self.identity.findText(identity) < 0:
+        """Chosen-identity conditioning (a heatmap click); nothing while no strategy is read (an
+        example pair conditions pose A and there is no pose B)."""
+        if self.identity.findText(identity) < 0 or not self.strategy.isEnabled():
             return
         self._quiet = True
         self.identity.setCurrentText(identity)
@@ -236,8 +278,18 @@ class Controls(QWidget):
     def _emit(self, *args, quiet: bool = False) -> None:
         self.magnitude_label.setText(f"{self.magnitude.value() / SLIDER_STEPS:.2f}x")
         self.blend_label.setText(f"{self.blend.value() / SLIDER_STEPS:.2f}")
-        self.identity.setEnabled(self.strategy.currentData() == "identity")
         has_b = self.pose_b.currentText() not in ("", NONE_POSE)
+        by_example = self._example is not None
+        # under an example, pose A (and so the pair kind) is the example's; the strategy still gives pose B
+        for w in (self.kind, self.pose):
+            w.setEnabled(not by_example)
+            w.setToolTip(BY_EXAMPLE_TIP if by_example else "")
+        self.strategy.setEnabled(not by_example or has_b)
+        self.identity.setEnabled(self.strategy.isEnabled() and self.strategy.currentData() == "identity")
+        self.compare.setEnabled(not by_example)
         self.blend.setEnabled(has_b)
+        self.example_clear.setEnabled(by_example)
+        self.example_label.setText(NO_EXAMPLE if not by_example else f"<b>example: {html.escape(self._example)}</b> "
+                                                                    f"conditions pose A")
         if not (self._quiet or quiet):
             self.changed.emit(self.selection())

@@ -1,5 +1,5 @@
 """The main window: controls | three linked views | heatmap panel, a File menu, drag-and-drop,
-shortcuts, a status bar with progress and the last update's time.
+shortcuts, a status bar with progress, the last update's time and out-of-distribution warnings.
 
 The window owns no model state: the `Session` does (selection, prediction shown, heatmaps, noise
 floor, opened meshes, pending work) and the widgets subscribe to its events. The window is the
@@ -23,10 +23,11 @@ from latent_model.meshio import EXPORT_FORMATS, FORMATS, UserMesh, load_mesh
 
 from explorer.controls import Controls
 from explorer.heatmaps import HeatmapPanel
-from explorer.results import (Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened, NoiseFloor, Predicted,
-                              ViewState)
+from explorer.results import (ExampleOpened, Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened, NoiseFloor,
+                              Predicted, ViewState, example_subject)
 from explorer.selection import Selection, read_session, save_session
 from explorer.session import Loaded, Session
+from explorer.status import StatusLabel
 from explorer.viewports import ViewPanel
 from explorer.workers import ModelWorker
 
@@ -81,7 +82,7 @@ class MainWindow(QMainWindow):
         self.splitter = split
         self.setCentralWidget(split)
 
-        self.status_text = QLabel("starting", self)
+        self.status_text = StatusLabel("starting", self)
         self.progress = QProgressBar(self)
         self.progress.setMaximumWidth(180)
         self.progress.setVisible(False)
@@ -98,12 +99,14 @@ class MainWindow(QMainWindow):
         # worker results, dispatched by type: the session takes what changes the window state
         self._handlers: dict[type, Callable] = {
             Loaded: self._loaded, Predicted: self._predicted, Failed: self._failed,
-            HeatmapData: self._apply, NoiseFloor: self._apply, MeshOpened: self._apply, Exported: self._apply}
+            HeatmapData: self._apply, NoiseFloor: self._apply, MeshOpened: self._apply, ExampleOpened: self._apply,
+            Exported: self._apply}
         self.worker.result.connect(self._on_result)
         self.worker.progress.connect(self._on_progress)
         self.controls.changed.connect(self.request)
         self.controls.view_requested.connect(self.views.set_view)
         self.controls.reset_all.clicked.connect(self.reset_selection)
+        self.controls.example_requested.connect(self._example_dialog)
         self.heatmaps.identity_clicked.connect(self.controls.condition_on)
         self.heatmaps.noise_requested.connect(self.request_noise)
         self.views.on_rendered("prediction", self._prediction_rendered)
@@ -152,6 +155,8 @@ class MainWindow(QMainWindow):
 
         f = self.menuBar().addMenu("&File")
         act(f, "&Open mesh…", "Ctrl+O", self._open_dialog)
+        act(f, "Condition on an e&xample pair…", "Ctrl+Shift+O", self._example_dialog)
+        act(f, "C&lear example pair", "Ctrl+Shift+X", self.controls.clear_example)
         act(f, "&Export prediction…", "Ctrl+E", self._export_dialog)
         act(f, "Save &screenshot…", "Ctrl+Shift+S", self._screenshot_dialog)
         f.addSeparator()
@@ -165,7 +170,7 @@ class MainWindow(QMainWindow):
         act(v, "&Reset view", "R", lambda: self.views.set_view("reset"))
         act(v, "&Wireframe", "W", lambda: self.controls.wireframe.toggle())
         act(v, "Colour by &displacement", "D", self.controls.toggle_displacement)
-        act(v, "&Compare mean vs nearest", "C", lambda: self.controls.compare.toggle())
+        act(v, "&Compare mean vs nearest", "C", self.controls.toggle_compare)
         s = self.menuBar().addMenu("&Sliders")
         act(s, "Magnitude +0.1", "]", lambda: self.controls.magnitude.setValue(self.controls.magnitude.value() + 10))
         act(s, "Magnitude -0.1", "[", lambda: self.controls.magnitude.setValue(self.controls.magnitude.value() - 10))
@@ -178,6 +183,7 @@ class MainWindow(QMainWindow):
     def _help(self) -> None:
         QMessageBox.information(self, "Keyboard shortcuts", (
             "Ctrl+O open mesh · Ctrl+E export prediction · Ctrl+Shift+S screenshot\n"
+            "Ctrl+Shift+O condition on an example pair · Ctrl+Shift+X clear it\n"
             "Ctrl+S / Ctrl+L save / load session · Ctrl+Q quit\n"
             "F front · S side · R reset view · W wireframe · D displacement colours · C compare\n"
             "[ ] magnitude −/+ 0.1 · , . blend −/+ 0.1 · 0 reset sliders\n"
@@ -221,9 +227,10 @@ class MainWindow(QMainWindow):
         ev.selection.connect(self._selected)
         ev.state.connect(self._state_shown)
         ev.heatmaps_wanted.connect(self._start_heatmaps)
-        ev.heatmaps.connect(lambda _: self.status_text.setText("ready"))
-        ev.noise.connect(lambda _: self.status_text.setText("ready"))
+        ev.heatmaps.connect(lambda _: self._ready())
+        ev.noise.connect(lambda _: self._ready())
         ev.mesh_opened.connect(lambda m: self.status_text.setText(m.summary))
+        ev.example_opened.connect(lambda e: self.status_text.setText(e.summary))
         ev.exported.connect(lambda e: self.status_text.setText(f"exported {e.path}"))
         ev.failed.connect(lambda f: self.show_error(f.message))
         self.controls.set_choices(s.targets, s.kinds(), {k: s.poses(k) for k in s.kinds()}, s.training_ids)
@@ -273,8 +280,21 @@ class MainWindow(QMainWindow):
         self.worker.request(sel)
 
     def _state_shown(self, state: ViewState) -> None:
+        if state.warnings:
+            self._ready()
+        elif self.status_text.is_warning:  # the mesh that was out of distribution is no longer shown
+            self.status_text.setText("ready")
         if self.heatmaps.currentIndex() == 2:
             self.request_noise()
+
+    def _ready(self) -> None:
+        """Work finished: "ready", or the shown prediction's out-of-distribution warning (it must not be
+        lost under a later message: the prediction on screen is extrapolation)."""
+        warnings = self.state.warnings if self.state is not None else []
+        if warnings:
+            self.status_text.show_message(" · ".join(warnings), warning=True)
+        else:
+            self.status_text.setText("ready")
 
     def _start_heatmaps(self, req: HeatmapRequest) -> None:
         s = self.session
@@ -354,6 +374,17 @@ class MainWindow(QMainWindow):
 
         self.worker.submit(MeshOpened, job, subject=path)
 
+    def open_example(self, neutral: str | Path, posed: str | Path) -> None:
+        """Condition on an example pair: A and A1 are read and encoded in the worker (seconds, with
+        progress), then predict the current target; a bad pair gives a dialog."""
+        s = self.session
+        if s is None:
+            self.show_error("the model is still loading; open the example pair again in a moment")
+            return
+        neutral, posed = str(neutral), str(posed)
+        self.worker.submit(ExampleOpened, lambda: s.open_example_steps(neutral, posed),
+                           subject=example_subject(neutral, posed))
+
     def export_path(self, path: str | Path) -> None:
         state = self.state
         if state is None:
@@ -382,28 +413,44 @@ class MainWindow(QMainWindow):
     def save_session(self, path: str | Path) -> Path:
         s = self.session
         sel = s.selection if s is not None and s.selection is not None else self.controls.selection()
-        return save_session(path, sel, s.mesh_paths if s is not None else {})
+        held = s.example_paths if s is not None else {}
+        examples = {sel.example: held[sel.example]} if sel.example in held else {}
+        return save_session(path, sel, s.mesh_paths if s is not None else {}, examples)
 
     def load_session(self, path: str | Path) -> None:
         try:
-            sel, meshes = read_session(path)
+            saved = read_session(path)
         except ValueError as e:
             self.show_error(str(e))
             return
-        self.restore_session(sel, meshes)
+        self.restore_session(*saved)
 
-    def restore_session(self, sel: Selection, meshes: dict[str, str]) -> None:
-        """Show a saved selection, opening its meshes first."""
+    def restore_session(self, sel: Selection, meshes: dict[str, str],
+                        examples: dict[str, tuple[str, str]] | None = None) -> None:
+        """Show a saved selection, opening its meshes and its example pair first."""
         if self.session is None:
             self.show_error("the model is still loading; load the session again in a moment")
             return
-        for p in self.session.restore(sel, meshes).values():
+        to_open = self.session.restore(sel, meshes, examples)
+        for p in to_open.meshes.values():
             self.open_path(p)
+        for neutral, posed in to_open.examples.values():
+            self.open_example(neutral, posed)
 
     def _open_dialog(self) -> None:
         p, _ = QFileDialog.getOpenFileName(self, "Open mesh", "", MESH_FILTER)
         if p:
             self.open_path(p)
+
+    def _example_dialog(self) -> None:
+        """Two file dialogs: the character's neutral mesh A, then A deformed (A1, same vertices and triangles)."""
+        a, _ = QFileDialog.getOpenFileName(self, "Example pair: the neutral mesh A", "", MESH_FILTER)
+        if not a:
+            return
+        a1, _ = QFileDialog.getOpenFileName(self, f"Example pair: {Path(a).name} deformed (A1, same vertices and "
+                                                  f"triangles)", str(Path(a).parent), MESH_FILTER)
+        if a1:
+            self.open_example(a, a1)
 
     def _export_dialog(self) -> None:
         p, _ = QFileDialog.getSaveFileName(self, "Export prediction", "prediction.obj", EXPORT_FILTER)

@@ -1,16 +1,21 @@
-"""The typed results the explorer's jobs return and its views draw: a selection's pair, predictions and
-view states, heatmap data, the noise floor, and the outcomes of opening, exporting, failing (`Loaded`,
-which carries the session itself, lives in session.py)."""
+"""The typed results the explorer's jobs return and its views draw: a selection's pair, an example pair,
+predictions and view states, heatmap data, the noise floor, and the outcomes of opening, exporting,
+failing (`Loaded`, which carries the session itself, lives in session.py)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from latent_model.meshio import UserMesh
 from latent_model.types import ColourBy, PairKind
 
 from explorer.selection import Selection
+
+if TYPE_CHECKING:  # the results only carry a Novelty: importing the Transfer API (torch) is the session's job
+    from latent_model.transfer import Novelty
 
 ERROR_RANGE_MM = (0.0, 40.0)  # fixed colour range of per-vertex error (shared by every prediction view)
 DISPLACEMENT_RANGE_MM = (0.0, 80.0)  # fixed colour range of |prediction - source|
@@ -34,28 +39,61 @@ class PairRef:
         return (self.target,) + (self.source or ())
 
 
+@dataclass(frozen=True, eq=False)  # compared by identity: the arrays are large and a pair is opened once
+class ExamplePair:
+    """An example pair the session holds: a character's mesh A and the same mesh deformed, A1 (both in the
+    model frame, A1 in A's frame), and the latent delta mu(A1) - mu(A) that conditions a prediction in
+    place of a pose's delta. Encoding is the slow part, so the delta is computed once, when it is opened."""
+
+    name: str  # its key among the session's example pairs: "A.obj → A1.obj"
+    neutral: UserMesh  # A
+    posed: UserMesh  # A1: A's vertices and triangles, deformed
+    delta: np.ndarray  # (Z,) raw latent delta mu(A1) - mu(A)
+    paths: tuple[str, str]  # the files of A and A1 (saved in session files)
+    stamp: tuple  # the files' (size, mtime) when read: the same files unchanged are not encoded again
+    novelty: Novelty | None = None  # how far A is from the training states (None: the bank has no threshold)
+
+    @property
+    def label(self) -> str:
+        return f"example: {self.name}"
+
+    def warning(self) -> str | None:
+        """The out-of-distribution warning of A, if its latent is beyond the validated range."""
+        return None if self.novelty is None else self.novelty.warning(f"the example's neutral {self.neutral.name}")
+
+
 # ----------------------------------------------------------------------------- results
 @dataclass
 class Prediction:
     """One prediction: model-frame arrays, all (V, 3) / (V,), with its error against the truth."""
 
-    strategy: str
-    label: str  # conditioning source: "mean" or an identity id
+    strategy: str  # a Strategy, or "example" when an example pair's delta conditioned pose A
+    label: str  # conditioning source: "mean", an identity id, or the example pair's name
     vertices: np.ndarray
     error_mm: np.ndarray | None  # (V,) |pred - truth| in mm, None without truth
     displacement_mm: np.ndarray  # (V,) |pred - source| in mm
     normals: np.ndarray | None = None  # (V, 3) unit vertex normals for shading (computed off the UI thread)
     gate: float = 1.0  # the Transfer API's noise gate (1 = the predictor's output untouched)
     signal: float = float("inf")  # conditioning delta / latent noise floor
+    novelty: Novelty | None = None  # how far the target's latent is from training (None: not judged)
+
+    @property
+    def is_example(self) -> bool:
+        return self.strategy == "example"
 
     @property
     def title(self) -> str:
-        name = STRATEGY_LABELS.get(self.strategy, "identity " + self.strategy.split(":", 1)[-1])
-        cond = f" ({self.label})" if self.strategy != "mean_pose_delta" and not self.strategy.startswith("identity:") else ""
+        if self.is_example:
+            name, cond = f"example: {self.label}", ""
+        else:
+            name = STRATEGY_LABELS.get(self.strategy, "identity " + self.strategy.split(":", 1)[-1])
+            cond = f" ({self.label})" if self.strategy != "mean_pose_delta" and not self.strategy.startswith("identity:") else ""
         what, mm = ("error", self.error_mm) if self.error_mm is not None else ("displacement", self.displacement_mm)
         text = f"{name}{cond}\n{what} mean {mm.mean():.1f} mm\n{what} max {mm.max():.1f} mm"
         if self.gate < 1.0:
             text += f"\nnoise gate {self.gate:.2f}: delta {self.signal:.1f}x noise floor"
+        if self.novelty is not None and self.novelty.out_of_distribution:
+            text += f"\nout of distribution: latent {self.novelty.distance:.1f} > {self.novelty.threshold:.1f}"
         return text
 
 
@@ -72,6 +110,7 @@ class ViewState:
     predictions: list[Prediction]  # one, or mean + nearest when comparing
     seconds: float = 0.0  # time the session took to compute it
     seconds_predict: float = 0.0  # of which inside Transfer.predict
+    example: ExamplePair | None = None  # the example pair that conditioned pose A, if one did
 
     @property
     def target(self) -> str:
@@ -89,8 +128,16 @@ class ViewState:
     @property
     def conditioning(self) -> str | None:
         """The identity whose delta conditioned the (first) prediction, if one did."""
-        lab = self.prediction.label
-        return None if lab in ("mean", "oracle") else lab
+        p = self.prediction
+        return None if p.is_example or p.label in ("mean", "oracle") else p.label
+
+    @property
+    def warnings(self) -> list[str]:
+        """Out-of-distribution warnings of what the model read: the target, and the example's neutral."""
+        out = [w for p in self.predictions if p.novelty is not None and (w := p.novelty.warning(self.target))]
+        if self.example is not None and (w := self.example.warning()):
+            out.append(w)
+        return list(dict.fromkeys(out))  # compare mode: one target, one warning
 
 
 @dataclass(frozen=True)
@@ -150,6 +197,20 @@ class MeshOpened:
     name: str  # its name among the targets
     path: str
     summary: str  # one line for the status bar
+
+
+@dataclass(frozen=True)
+class ExampleOpened:
+    """An example pair read and encoded: the session holds it (its prediction follows)."""
+
+    pair: ExamplePair
+    subject: str  # `example_subject` of its two paths (what a restored session waits for)
+    summary: str  # one line for the status bar
+
+
+def example_subject(neutral: str | Path, posed: str | Path) -> str:
+    """One string naming an example pair's two files (a job's subject, a restore's pending item)."""
+    return f"{neutral}\n{posed}"
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,11 @@
-"""What the user chose (`Selection`), its validation, and the session file (JSON) that stores it."""
+"""What the user chose (`Selection`), its validation, and the session file (JSON) that stores it (with
+the files of the opened meshes and example pairs it names)."""
 from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
+from typing import NamedTuple
 
 from latent_model.atomic import atomic_write_json
 from latent_model.errors import UserFacingError
@@ -33,6 +35,9 @@ class Selection:
     colour: ColourBy = "error"  # the user's choice; an opened mesh has no truth and shows displacement
     compare: bool = False
     wireframe: bool = False
+    # an example pair the session holds (its name): its delta conditions pose A instead of the pose's;
+    # None = the pose list and the strategy condition it
+    example: str | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -57,13 +62,24 @@ class Selection:
         return Selection(**d).checked()
 
 
-def save_session(path: str | Path, sel: Selection, meshes: dict[str, str] | None = None) -> Path:
-    """Write the selection (and the paths of opened meshes) as JSON, atomically."""
-    return atomic_write_json(path, {"format": SESSION_FORMAT, "selection": sel.to_dict(), "meshes": meshes or {}})
+class SavedSession(NamedTuple):
+    """A session file's content."""
+
+    selection: Selection
+    meshes: dict[str, str]  # opened mesh name -> its file
+    examples: dict[str, tuple[str, str]]  # example pair name -> (file of A, file of A1)
 
 
-def read_session(path: str | Path) -> tuple[Selection, dict[str, str]]:
-    """(selection, {mesh name: file path}) of a session file."""
+def save_session(path: str | Path, sel: Selection, meshes: dict[str, str] | None = None,
+                 examples: dict[str, tuple[str, str]] | None = None) -> Path:
+    """Write the selection (and the paths of opened meshes and example pairs) as JSON, atomically."""
+    return atomic_write_json(path, {"format": SESSION_FORMAT, "selection": sel.to_dict(), "meshes": meshes or {},
+                                    "examples": {k: list(v) for k, v in (examples or {}).items()}})
+
+
+def read_session(path: str | Path) -> SavedSession:
+    """(selection, {mesh name: file path}, {example name: (file of A, file of A1)}) of a session file
+    (files written before example pairs existed have none)."""
     path = Path(path)
     try:
         d = json.loads(path.read_text())
@@ -74,8 +90,9 @@ def read_session(path: str | Path) -> tuple[Selection, dict[str, str]]:
     if not isinstance(d, dict) or d.get("format") != SESSION_FORMAT:
         raise SessionError(f"{path}: not an explorer session (format {SESSION_FORMAT} expected)")
     try:
-        return Selection.from_dict(d["selection"]), dict(d.get("meshes", {}))
+        examples = {str(k): (str(v[0]), str(v[1])) for k, v in dict(d.get("examples", {})).items()}
+        return SavedSession(Selection.from_dict(d["selection"]), dict(d.get("meshes", {})), examples)
     except SessionError as e:
         raise SessionError(f"{path}: {e}") from None
-    except (KeyError, TypeError) as e:
+    except (KeyError, TypeError, IndexError, ValueError) as e:
         raise SessionError(f"{path}: broken session file ({e})") from None

@@ -9,11 +9,16 @@ the model without a display.
 
 Two threads touch a `Session`, on separate parts of it:
 - the model worker thread runs the compute side (`compute`, `heatmaps`, `noise_floor_steps`,
-  `open_mesh`, `export`): it fills caches and returns typed results (`Predicted`, `HeatmapData`,
-  `NoiseFloor`, `MeshOpened`, `Exported`) and never writes the window state;
-- the UI thread writes the window state, only through `select`, `apply(result)`, `restore` and
-  `begin_noise`, and the events fire there. The one structure both sides read, `meshes`, is
-  guarded by a lock.
+  `open_mesh`, `open_example_steps`, `export`): it fills caches and returns typed results
+  (`Predicted`, `HeatmapData`, `NoiseFloor`, `MeshOpened`, `ExampleOpened`, `Exported`) and never
+  writes the window state;
+- the UI thread writes the window state, only through `select`, `condition`, `apply(result)`,
+  `restore` and `begin_noise`, and the events fire there. The structures both sides read, `meshes`
+  and `examples`, are guarded by locks.
+
+An example pair (A, A1) conditions a prediction the way a pose does: the selection names it
+(`Selection.example`), its delta mu(A1) - mu(A) replaces pose A's, and the magnitude and blend
+sliders act on it as on a pose's.
 """
 from __future__ import annotations
 
@@ -22,7 +27,8 @@ import time
 from dataclasses import dataclass, field, replace
 from functools import singledispatchmethod
 from pathlib import Path
-from typing import Callable
+from collections.abc import Generator
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -32,8 +38,9 @@ from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
 from latent_model.types import FINAL, PAIR_KINDS
 
 from explorer.events import Event
-from explorer.results import (Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened, NoiseFloor, PairRef,
-                              Predicted, Prediction, ViewState)
+from explorer.example_pair import ExamplePairs, Progress, read_example_steps
+from explorer.results import (ExampleOpened, ExamplePair, Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened,
+                              NoiseFloor, PairRef, Predicted, Prediction, ViewState, example_subject)
 from explorer.selection import Selection, SessionError
 
 COMPARE_STRATEGIES = ("mean_pose_delta", "nearest_identity_delta")
@@ -60,8 +67,16 @@ class SessionEvents:
     heatmaps: Event[HeatmapData] = field(default_factory=lambda: Event("heatmaps"))
     noise: Event[NoiseFloor] = field(default_factory=lambda: Event("noise"))
     mesh_opened: Event[MeshOpened] = field(default_factory=lambda: Event("mesh_opened"))
+    example_opened: Event[ExampleOpened] = field(default_factory=lambda: Event("example_opened"))
     exported: Event[Exported] = field(default_factory=lambda: Event("exported"))
     failed: Event[Failed] = field(default_factory=lambda: Event("failed"))
+
+
+class ToOpen(NamedTuple):
+    """What a restored session needs opened before its selection is selected."""
+
+    meshes: dict[str, str]  # mesh name -> file
+    examples: dict[str, tuple[str, str]]  # example pair name -> (file of A, file of A1)
 
 
 class Session:
@@ -74,6 +89,7 @@ class Session:
         self.truth = truth  # latent_model.shipped.GroundTruth or None
         self.test_ids = list(test_ids or [])
         self.meshes: dict[str, UserMesh] = {}
+        self.examples = ExamplePairs()  # example pairs read and encoded (thread-safe itself)
         self._meshes_lock = threading.Lock()
         self._prepared: dict[tuple, object] = {}
         self._noise: dict[str, NoiseFloor] = {}
@@ -87,8 +103,10 @@ class Session:
         self.noise: NoiseFloor | None = None  # the noise floor shown
         self.noise_for: str | None = None  # the target whose noise floor is being computed
         self.mesh_paths: dict[str, str] = {}  # opened mesh name -> its file (saved in session files)
+        self.example_paths: dict[str, tuple[str, str]] = {}  # example pair name -> (file of A, of A1)
         self.pending_selection: Selection | None = None  # a restored selection waiting for its meshes
-        self._pending_paths: set[str] = set()
+        self._pending_paths: set[str] = set()  # mesh paths and example subjects it waits for
+        self._pending_examples: dict[str, str] = {}  # example subject -> the name the saved selection gave it
 
     # -------------------------------------------------------------- construction
     @classmethod
@@ -169,6 +187,11 @@ class Session:
             raise SessionError("the oracle strategy is for the evaluation only; use mean, nearest or identity:<id>")
         if s.startswith("identity:") and s.split(":", 1)[1] not in self.training_ids:
             raise SessionError(f"{s}: not a training identity; valid: {', '.join(self.training_ids)}")
+        if sel.example is not None:
+            self.example(sel.example)
+            if sel.kind != "neutral_to_pose":
+                raise SessionError("an example pair is a neutral -> posed deformation: only neutral_to_pose applies "
+                                   "to it (clear the example to predict another pair kind)")
         if not self.has_truth(sel.target) and sel.kind != "neutral_to_pose":
             raise SessionError(f"an opened mesh ({sel.target}) is a source mesh: only neutral_to_pose applies to it")
         return sel
@@ -194,6 +217,49 @@ class Session:
         with self._meshes_lock:
             self.meshes.pop(name, None)
         self._prepared = {k: v for k, v in self._prepared.items() if k[0] != name}
+
+    # -------------------------------------------------------------- example pairs
+    def example(self, name: str) -> ExamplePair:
+        """A held example pair (SessionError naming the held ones when unknown)."""
+        ex = self.examples.get(name)
+        if ex is None:
+            raise SessionError(f"unknown example pair {name!r}; open it with File > Condition on an example pair… "
+                               f"(held: {', '.join(self.examples.names()) or 'none'})")
+        return ex
+
+    def open_example_steps(self, neutral: str | Path, posed: str | Path, up: str = "auto",
+                           units: str = "auto") -> Generator[Progress, None, ExampleOpened]:
+        """Generator (model worker): read and encode an example pair, yielding (message, fraction);
+        returns `ExampleOpened`. The same two files, unchanged, are not encoded again. A bad file or an
+        A1 that is not A deformed raises MeshError with the fix."""
+        held = self.examples.find(neutral, posed)
+        if held is None:
+            held = self.examples.add((yield from read_example_steps(self.transfer, neutral, posed, up, units)))
+        a, a1 = held.neutral, held.posed
+        moved = np.linalg.norm(a1.vertices - a.vertices, axis=1).max() * 1000
+        return ExampleOpened(held, example_subject(neutral, posed), f"{held.label} ({a.n_file_vertices} vertices, "
+                             f"{len(a.file_faces)} triangles; A1 moves vertices by up to {moved:.0f} mm)")
+
+    def open_example(self, neutral: str | Path, posed: str | Path, up: str = "auto",
+                     units: str = "auto") -> ExampleOpened:
+        """`open_example_steps` run to the end (scripts and tests)."""
+        steps = self.open_example_steps(neutral, posed, up, units)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as done:
+                return done.value
+
+    def conditioned(self, sel: Selection, example: str | None) -> Selection:
+        """`sel` conditioned on a held example pair, or back on its pose (`example` None). An example is
+        a neutral -> posed deformation, so it predicts neutral_to_pose, one prediction (comparing mean
+        and nearest is about pose strategies); pose B, if kept, is blended toward as usual."""
+        if example is None:
+            return replace(sel, example=None)
+        poses = self.poses("neutral_to_pose")
+        return replace(sel, example=example, kind="neutral_to_pose", compare=False,
+                       pose=sel.pose if sel.pose in poses else poses[0],
+                       pose_b=sel.pose_b if sel.pose_b in poses else None)
 
     def pair(self, target: str, kind: str, pose: str) -> PairRef:
         """The pair a selection names; `pose` is a bank pose key (source_to_combo: 'combo<component>')."""
@@ -232,37 +298,54 @@ class Session:
         return self.prepare(self.pair(target, kind, pose or self.poses(kind)[0]))
 
     # -------------------------------------------------------------- prediction
-    def _predict(self, sel: Selection, strategy: str, prepared, source: np.ndarray,
-                 truth: np.ndarray | None) -> tuple[Prediction, float]:
+    def _predict(self, sel: Selection, strategy: str, prepared, source: np.ndarray, truth: np.ndarray | None,
+                 example: ExamplePair | None = None) -> tuple[Prediction, float]:
         t = time.perf_counter()
         pose_b = sel.pose_b if sel.blend > 0 else None
-        out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
+        if example is None:
+            out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
+        else:  # the example's delta is pose A's; the strategy still gives pose B's when blending
+            out = self.transfer.predict_detail(prepared, None, strategy, sel.magnitude, sel.kind, pose_b, sel.blend,
+                                               delta=example.delta)
         v = out.vertices
         dt = time.perf_counter() - t
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
-        return Prediction(strategy, out.label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal), dt
+        novelty = out.novelty if out.novelty is not None else self._novelty(prepared)
+        strategy, label = (strategy, out.label) if example is None else ("example", example.name)
+        return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal,
+                          novelty), dt
+
+    def _novelty(self, prepared):
+        """The target's Novelty when the bank can judge it (a predictor that did not read the latent
+        leaves it to us: this encodes the mesh once), else None."""
+        return self.transfer.novelty(prepared) if self.transfer.bank.ood_threshold > 0 else None
 
     def compute(self, sel: Selection) -> ViewState:
         """Everything the views show for a selection (the one path: Transfer.prepare + predict)."""
         t0 = time.perf_counter()
         sel = self.validate(sel)
+        example = None if sel.example is None else self.example(sel.example)
         pair = self.pair(sel.target, sel.kind, sel.pose)
         prepared = self.prepare(pair)
         source = prepared.vertices
-        truth = self.truth_state(pair)
-        truth_title = "ground truth: none\n(an opened mesh)" if truth is None else f"ground truth ({sel.pose})"
+        if example is not None:  # the rig has no state for the example's deformation of this target
+            truth, truth_title = None, f"ground truth: none\n({example.label})"
+        else:
+            truth = self.truth_state(pair)
+            truth_title = "ground truth: none\n(an opened mesh)" if truth is None else f"ground truth ({sel.pose})"
         if truth is not None and sel.pose_b is not None and sel.blend > 0:
             tb = self.truth_state(self.pair(sel.target, sel.kind, sel.pose_b))
             truth = ((1.0 - sel.blend) * truth + sel.blend * tb).astype(np.float32)
             truth_title = f"reference: truths blended\n{sel.pose} -> {sel.pose_b}\nat {sel.blend:.2f}, linearly"
-        strategies = COMPARE_STRATEGIES if sel.compare else (sel.strategy,)
+        strategies = COMPARE_STRATEGIES if sel.compare and example is None else (sel.strategy,)
         preds, t_dec = [], 0.0
         for s in strategies:
-            p, dt = self._predict(sel, s, prepared, source, truth)
+            p, dt = self._predict(sel, s, prepared, source, truth, example)
             preds.append(p)
             t_dec += dt
-        return ViewState(sel, pair, prepared.faces, source, truth, truth_title, preds, time.perf_counter() - t0, t_dec)
+        return ViewState(sel, pair, prepared.faces, source, truth, truth_title, preds, time.perf_counter() - t0, t_dec,
+                         example)
 
     def export(self, state: ViewState, path: str | Path, which: int = 0) -> Path:
         """Write a prediction in the frame, units and vertex order of its source file."""
@@ -331,16 +414,27 @@ class Session:
         self.selection = sel
         self.events.selection.emit(sel)
 
-    def restore(self, sel: Selection, meshes: dict[str, str]) -> dict[str, str]:
-        """A saved session: returns {name: path} of its meshes that must be opened first (its
-        selection is selected once they are, or at once when none is missing)."""
+    def condition(self, example: str | None) -> None:
+        """Condition the current selection on a held example pair, or back on its pose (None)."""
+        self.select(self.conditioned(self.selection or self.default_selection(), example))
+
+    def restore(self, sel: Selection, meshes: dict[str, str],
+                examples: dict[str, tuple[str, str]] | None = None) -> ToOpen:
+        """A saved session: returns the meshes and the example pair that must be opened first (its
+        selection is selected once they are, or at once when nothing is missing). The example pair
+        is always opened again: unchanged files of a held pair are not re-encoded."""
         with self._meshes_lock:
             missing = {n: p for n, p in meshes.items() if n not in self.meshes}
-        if missing:
-            self.pending_selection, self._pending_paths = sel, set(missing.values())
+        wanted = {} if sel.example is None else {n: tuple(p) for n, p in (examples or {}).items() if n == sel.example}
+        if sel.example is not None and not wanted:  # a file that names the pair but not its files
+            sel = replace(sel, example=None)
+        if missing or wanted:
+            self.pending_selection = sel
+            self._pending_examples = {example_subject(*p): n for n, p in wanted.items()}
+            self._pending_paths = set(missing.values()) | set(self._pending_examples)
         else:
             self.select(sel)
-        return missing
+        return ToOpen(missing, wanted)
 
     def begin_noise(self, target: str) -> bool:
         """True when the noise floor of `target` must be computed now (it is then marked in
@@ -391,6 +485,23 @@ class Session:
         self.select(self._for_mesh(replace(base, target=result.name)))
 
     @apply.register
+    def _(self, result: ExampleOpened) -> None:
+        name = result.pair.name
+        self.example_paths[name] = result.pair.paths
+        self.events.example_opened.emit(result)
+        saved = self._pending_examples.pop(result.subject, None)
+        if self.pending_selection is not None:
+            sel = self.pending_selection
+            if saved is not None:  # a restored session's pair: the name it has now
+                self.pending_selection = replace(sel, example=name) if sel.example == saved else sel
+                self._pending_paths.discard(result.subject)
+            else:  # the user's own pair, while a session is restored: it conditions the restored selection
+                self.pending_selection = self.conditioned(sel, name)
+            self._resolve_pending()
+            return
+        self.condition(name)
+
+    @apply.register
     def _(self, result: Exported) -> None:
         self.events.exported.emit(result)
 
@@ -403,6 +514,10 @@ class Session:
         elif result.job is MeshOpened and self.pending_selection is not None:
             self._pending_paths.discard(result.subject)
             self._resolve_pending()
+        elif result.job is ExampleOpened and result.subject in self._pending_examples:
+            del self._pending_examples[result.subject]  # the restored selection goes back to its pose
+            self._pending_paths.discard(result.subject)
+            self._resolve_pending()
         self.events.failed.emit(result)
 
     def _resolve_pending(self) -> None:
@@ -412,7 +527,8 @@ class Session:
         sel, self.pending_selection = self.pending_selection, None
         if sel.target not in self.targets:  # its mesh failed to open: keep the current target
             sel = replace(sel, target=(self.selection or self.default_selection()).target)
-        self.select(self._for_mesh(sel))
+        example = sel.example if sel.example in self.examples else None  # its pair failed: the pose conditions
+        self.select(self.conditioned(self._for_mesh(sel), example))
 
     def _for_mesh(self, sel: Selection) -> Selection:
         """An opened mesh is a source mesh: neutral_to_pose with poses that kind has."""

@@ -1,4 +1,7 @@
-"""The linked 3D views: Source | Prediction (| second prediction when comparing) | Ground truth.
+"""The linked 3D views: Source | Prediction (| second prediction when comparing) | Ground truth, or,
+while an example pair conditions the prediction, Example A | Example A1 | Source | Prediction: the
+analogy A → A1 as source → prediction, read left to right (there is no ground truth for the example's
+deformation of the target, so its view makes room for the pair).
 
 One shared camera (moving one view moves all), front/side/reset views, wireframe, the prediction
 coloured by per-vertex error against the truth (fixed shared range, colour bar) or by displacement
@@ -20,11 +23,16 @@ from latent_model.corpus.sdf import vertex_normals
 from explorer.results import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
 from explorer.session import Session
 
-VIEW_NAMES = ("source", "prediction", "prediction_b", "truth")
+EXAMPLE_VIEWS = ("example_neutral", "example_posed")
+TARGET_VIEWS = ("source", "prediction", "prediction_b", "truth")
+VIEW_NAMES = EXAMPLE_VIEWS + TARGET_VIEWS  # left to right
 BACKGROUND = "#2b2f36"
 SKIN = "#d9c3b0"
 TRUTH = "#b7cbd9"
+EXAMPLE_POSED = "#b5d6b2"  # A1: neither the source's skin nor the truth's blue
 TITLE_PX = 12  # view titles: a fixed pixel size (pyvista's corner annotations shrink with the view)
+TITLE_PX_NARROW = 11  # when four views share the width (compare, example pair)
+GLYPH_EM = 0.58  # VTK's title font: a glyph is up to ~0.56 of the pixel size wide (lower-case words, digits)
 
 
 def _poly(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> pv.PolyData:
@@ -63,16 +71,20 @@ class ViewPanel(QWidget):
             lay.addWidget(p, 1)
             self.plotters[name] = p
         first = self.plotters["source"]
-        for name in VIEW_NAMES[1:]:
-            first.link_views_across_plotters(self.plotters[name])
+        for name in VIEW_NAMES:
+            if name != "source":
+                first.link_views_across_plotters(self.plotters[name])
         for p in self.plotters.values():  # shared camera: redraw the others after an interaction
             p.iren.add_observer("InteractionEvent", self._sync_others)
-        self.plotters["prediction_b"].setVisible(False)
+        for name in ("prediction_b",) + EXAMPLE_VIEWS:
+            self.plotters[name].setVisible(False)
         self._faces: np.ndarray | None = None
         self._polys: dict[str, pv.PolyData] = {}
         self._actors: dict = {}
         self._texts: dict = {}
-        self._mode: tuple | None = None
+        self._mode: tuple | None = None  # (colour, compare, vertices, wireframe, example shown)
+        self._example = None  # the ExamplePair drawn in the example views
+        self._example_actors: dict = {}
         self.wireframe = False
         self.state: ViewState | None = None
         self._camera_set = False
@@ -87,16 +99,19 @@ class ViewPanel(QWidget):
     def _title(self, name: str, text: str) -> bool:
         """Set a view's title, wrapped to the view's width; True when what it shows changed."""
         self._raw_titles[name] = text
-        chars = max(12, int(0.95 * self.width() / self._n_views / (TITLE_PX * 0.54)))  # ~6.5 px a glyph
+        px = TITLE_PX if self._n_views <= 3 else TITLE_PX_NARROW
+        chars = max(12, int(0.95 * self.width() / self._n_views / (px * GLYPH_EM)))
+        text = text.replace("→", "->")  # the font VTK embeds has no arrow glyph
         wrapped = "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
         if name in self._texts:
-            if self._texts[name].input == wrapped:
+            t = self._texts[name]
+            if t.input == wrapped and t.prop.font_size == px:
                 return False
-            self._texts[name].input = wrapped
+            t.input, t.prop.font_size = wrapped, px
             return True
         t = pv.Text(wrapped, position=(0.03, 0.985))
         t.GetPositionCoordinate().SetCoordinateSystemToNormalizedViewport()
-        t.prop.font_size = TITLE_PX
+        t.prop.font_size = px
         t.prop.color = "white"
         t.prop.justification_horizontal = "left"
         t.prop.justification_vertical = "top"
@@ -113,16 +128,18 @@ class ViewPanel(QWidget):
     def _build(self, state: ViewState, colour: str) -> None:
         """(Re)create the actors: new topology, colour mode or compare layout."""
         compare = len(state.predictions) > 1
+        by_example = state.example is not None
         rng = ERROR_RANGE_MM if colour == "error" else DISPLACEMENT_RANGE_MM
         bar_title = "error vs truth (mm)" if colour == "error" else "displacement (mm)"
-        for name, p in self.plotters.items():
+        for name in TARGET_VIEWS:
+            p = self.plotters[name]
             for title in list(p.scalar_bars.keys()):
                 p.remove_scalar_bar(title)
             p.clear_actors()
-        self._texts.clear()
-        self._n_views = 4 if compare else 3
+            self._texts.pop(name, None)
+        self._n_views = 2 + compare + (2 if by_example else 1)
         normals = vertex_normals(state.source, state.faces)
-        self._polys = {n: _poly(state.source, state.faces, normals) for n in VIEW_NAMES}
+        self._polys = {n: _poly(state.source, state.faces, normals) for n in TARGET_VIEWS}
         self._actors = {}
         style = "wireframe" if self.wireframe else "surface"
         self._actors["source"] = _add_smooth(self.plotters["source"], self._polys["source"], color=SKIN, style=style)
@@ -137,11 +154,27 @@ class ViewPanel(QWidget):
         sb = self.plotters["prediction"].add_scalar_bar(mapper=self._actors["prediction"].mapper, **bar)
         sb.SetTextPositionToPrecedeScalarBar()  # tick labels under the bar, the title over it: they never overlap
         self.plotters["prediction_b"].setVisible(compare)
+        self.plotters["truth"].setVisible(not by_example)
+        for n in EXAMPLE_VIEWS:
+            self.plotters[n].setVisible(by_example)
         self._faces = state.faces
-        self._mode = (colour, compare, len(state.source), self.wireframe)
+        self._mode = (colour, compare, len(state.source), self.wireframe, by_example)
         if not self._camera_set:
             self.set_view("front", render=False)
             self._camera_set = True
+
+    def _draw_example(self, example) -> None:
+        """Draw an example pair's A and A1 in their views (their own topology: actors made anew)."""
+        self._example, self._example_actors = example, {}
+        style = "wireframe" if self.wireframe else "surface"
+        for n, mesh, colour, what in zip(EXAMPLE_VIEWS, (example.neutral, example.posed), (SKIN, EXAMPLE_POSED),
+                                         ("example A (neutral)", "example A1 (posed)")):
+            p = self.plotters[n]
+            p.clear_actors()
+            self._texts.pop(n, None)
+            poly = _poly(mesh.vertices, mesh.faces, vertex_normals(mesh.vertices, mesh.faces))
+            self._example_actors[n] = _add_smooth(p, poly, color=colour, style=style)
+            self._title(n, f"{what}\n{mesh.name}")
 
     def bind(self, session: Session) -> None:
         """Draw each prediction the session shows."""
@@ -153,7 +186,7 @@ class ViewPanel(QWidget):
         compare = len(state.predictions) > 1
         rebuilt = False
         if (self._faces is None or self._faces is not state.faces and not np.array_equal(self._faces, state.faces)
-                or self._mode != (colour, compare, len(state.source), self.wireframe)):
+                or self._mode != (colour, compare, len(state.source), self.wireframe, state.example is not None)):
             self._build(state, colour)
             rebuilt = True
         prev, self.state = self.state, state
@@ -177,6 +210,9 @@ class ViewPanel(QWidget):
             dirty.add("truth")
         if rebuilt:
             dirty.add("source")
+        if state.example is not None and state.example is not self._example:
+            self._draw_example(state.example)
+            dirty.update(EXAMPLE_VIEWS)
         for n, pred in zip(("prediction", "prediction_b"), state.predictions + [None]):
             if pred is None:
                 continue
@@ -227,10 +263,10 @@ class ViewPanel(QWidget):
 
     def set_wireframe(self, on: bool) -> None:
         self.wireframe = on
-        for a in self._actors.values():
+        for a in list(self._actors.values()) + list(self._example_actors.values()):
             a.prop.style = "wireframe" if on else "surface"
         if self._mode is not None:
-            self._mode = self._mode[:3] + (on,)
+            self._mode = self._mode[:3] + (on,) + self._mode[4:]
         self.render()
 
     # -------------------------------------------------------------- images

@@ -170,6 +170,67 @@ def test_bad_file_shows_error_and_window_survives(window, qtbot, tmp_path):
     window.controls.magnitude.setValue(100)
 
 
+def test_condition_on_an_example_pair(window, qtbot, tmp_path, monkeypatch):
+    """File > Condition on an example pair…: two dialogs (A, then A1), the pair drawn beside the target
+    (A | A1 | source | prediction), the prediction conditioned and labelled, the magnitude scaling it, an
+    out-of-distribution warning in the status bar, a clear error for a wrong A1, and Clear back to the pose."""
+    import trimesh
+    from PySide6.QtWidgets import QFileDialog
+
+    from latent_model.types import FINAL
+
+    c, s = window.controls, window.session
+    held = _wait_state(qtbot, window, lambda st: st.truth is not None).target
+    other = next(t for t in s.test_ids if t != held)
+    for name, pose in (("A.obj", None), ("A1.obj", "elbowBentLf")):
+        v = s.truth.state(other, pose, "neutral" if pose is None else FINAL)
+        trimesh.Trimesh(v, s.truth.faces, process=False).export(tmp_path / name)
+    answers = iter([str(tmp_path / "A.obj"), str(tmp_path / "A1.obj")])
+    monkeypatch.setattr(QFileDialog, "getOpenFileName", lambda *a, **k: (next(answers), ""))
+    c.example_open.click()
+    st = _wait_state(qtbot, window, lambda st: st.example is not None)
+    assert st.target == held and st.truth is None and st.prediction.title.startswith("example: A.obj → A1.obj")
+    v = window.views
+    assert [n for n, p in v.plotters.items() if p.isVisible()] == ["example_neutral", "example_posed", "source",
+                                                                    "prediction"]
+    assert "example: A.obj → A1.obj" in c.example_label.text() and c.example_clear.isEnabled()
+    assert not c.pose.isEnabled() and not c.kind.isEnabled() and not c.compare.isEnabled()
+    assert np.abs(st.prediction.vertices - st.source).max() > 1e-3
+    c.magnitude.setValue(0)
+    zero = _wait_state(qtbot, window, lambda st: st.selection.magnitude == 0 and st.example is not None)
+    assert np.array_equal(zero.prediction.vertices, zero.source)
+
+    bank = s.transfer.bank
+    kept = bank.ood_threshold
+    try:  # every latent beyond a tiny threshold: the warning reaches the status bar
+        bank.ood_threshold = 1e-6
+        c.magnitude.setValue(100)
+        _wait_state(qtbot, window, lambda st: st.selection.magnitude == 1.0 and st.warnings)
+        qtbot.waitUntil(lambda: window.status_text.is_warning, timeout=TIMEOUT)
+        assert "out of distribution" in window.status_text.text() and held in window.status_text.text()
+    finally:
+        bank.ood_threshold = kept
+    c.magnitude.setValue(90)
+    _wait_state(qtbot, window, lambda st: st.selection.magnitude == pytest.approx(0.9) and not st.warnings)
+    qtbot.waitUntil(lambda: not window.status_text.is_warning, timeout=TIMEOUT)
+
+    wrong = tmp_path / "A1_other.obj"
+    trimesh.Trimesh(s.truth.state(other, "kneeBentLf", FINAL), s.truth.faces[:-10], process=False).export(wrong)
+    with qtbot.waitSignal(window.error_shown, timeout=TIMEOUT) as sig:
+        window.open_example(tmp_path / "A.obj", wrong)
+    assert "must be A.obj deformed" in sig.args[0]
+    window.error_dialog.close()
+    assert window.state.example is st.example  # the pair that conditions is kept
+
+    c.example_clear.click()
+    back = _wait_state(qtbot, window, lambda st: st.example is None)
+    assert back.truth is not None and [n for n, p in v.plotters.items() if p.isVisible()] == ["source", "prediction",
+                                                                                              "truth"]
+    assert c.pose.isEnabled() and c.compare.isEnabled() and not c.example_clear.isEnabled()
+    c.magnitude.setValue(100)
+    _wait_state(qtbot, window, lambda st: st.selection.magnitude == 1.0)
+
+
 def test_displacement_box_shows_an_opened_meshs_colouring(window, qtbot, tmp_path):
     """An opened mesh has no truth and is coloured by displacement: the box says so, fixed."""
     import trimesh
@@ -207,7 +268,9 @@ def test_screenshot_with_a_bad_mesh_or_session_fails_with_the_error(tmp_path):
     junk.write_text("{not json")
     out = tmp_path / "out.png"
     for args, named in ((["--mesh", str(bad)], "broken.obj"), (["--mesh", str(tmp_path / "missing.ply")], "missing.ply"),
-                        (["--session", str(junk)], "junk.json")):
+                        (["--session", str(junk)], "junk.json"),
+                        (["--example-neutral", str(bad), "--example-posed", str(bad)], "broken.obj"),
+                        (["--example-neutral", str(bad)], "--example-posed")):
         r = _run_app([*args, "--screenshot", str(out)])
         assert r.returncode != 0, f"{args}: exit 0\n{r.stderr[-1000:]}"
         assert "lrr-explorer: error:" in r.stderr and named in r.stderr, r.stderr[-1000:]

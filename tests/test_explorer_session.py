@@ -58,8 +58,14 @@ def test_selection_json_round_trip(tmp_path):
     sel = Selection(target="id014", pose="kneeBentLf", pose_b="elbowBentLf", blend=0.25, magnitude=1.5,
                     strategy="identity:id003", colour="displacement", compare=True)
     p = save_session(tmp_path / "s.json", sel, {"mine.obj": "/x/mine.obj"})
-    back, meshes = read_session(p)
-    assert back == sel and meshes == {"mine.obj": "/x/mine.obj"}
+    back, meshes, examples = read_session(p)
+    assert back == sel and meshes == {"mine.obj": "/x/mine.obj"} and examples == {}
+    ex = Selection(target="mine.obj", example="A.obj → A1.obj")
+    p = save_session(tmp_path / "e.json", ex, {"mine.obj": "/x/mine.obj"}, {"A.obj → A1.obj": ("/x/A.obj", "/x/A1.obj")})
+    assert read_session(p) == (ex, {"mine.obj": "/x/mine.obj"}, {"A.obj → A1.obj": ("/x/A.obj", "/x/A1.obj")})
+    old = tmp_path / "old.json"  # written before example pairs existed
+    old.write_text(json.dumps({"format": 1, "selection": {"target": "id014"}, "meshes": {}}))
+    assert read_session(old) == (Selection(target="id014"), {}, {})
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"format": 1, "selection": {"magnitude": 7}}))
     with pytest.raises(SessionError, match="magnitude"):
@@ -177,11 +183,12 @@ def test_compute_derives_the_pair_once(monkeypatch):
 
     class Out:
         def __init__(self, v):
-            self.vertices, self.gate, self.signal, self.label = v, 1.0, 9.0, "mean"
+            self.vertices, self.gate, self.signal, self.label, self.novelty = v, 1.0, 9.0, "mean", None
 
     class Transfer:
         class bank:
             keys = ["id000/neutral"]
+            ood_threshold = 0.0
 
             @staticmethod
             def poses(kind):
@@ -319,10 +326,10 @@ def test_opened_mesh_becomes_the_selection_and_restore_waits_for_its_mesh(sessio
     # a saved session whose mesh is not open yet: its selection waits for the mesh
     seen.clear()
     want = Selection(target="restored", pose="kneeBentLf", compare=True)
-    assert session.restore(want, {"restored": str(f)}) == {"restored": str(f)} and seen == []
+    assert session.restore(want, {"restored": str(f)}).meshes == {"restored": str(f)} and seen == []
     session.apply(Failed(MeshOpened, "broken", subject=str(f)))  # it failed: keep the current target
     assert session.pending_selection is None and [n for n, _ in seen] == ["selection", "failed"]
     assert seen[0][1].target == name and seen[0][1].compare
     seen.clear()
-    assert session.restore(Selection(target=t), {name: str(f)}) == {}  # everything open: selected at once
+    assert session.restore(Selection(target=t), {name: str(f)}) == ({}, {})  # everything open: selected at once
     assert seen == [("selection", Selection(target=t))]

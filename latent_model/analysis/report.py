@@ -100,6 +100,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     from latent_model.analysis import figures
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sources import SdfGrid, model_source, pca_baseline_source
+    from latent_model.analysis.decoder_eval import evaluate_decoder
     from latent_model.analysis.transfer_eval import evaluate_transfer
     from latent_model.bank import LatentBank
     from latent_model.config import default_corpus_dir
@@ -143,9 +144,15 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     say("mesh transfer on held-out identities")
     t = time.perf_counter()
     transfer = Transfer(model, bank, preset.corpus.sdf.k)
-    ids = test[:transfer_ids] if transfer_ids else test
+    # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
+    bind = [i for i in test if corpus.identities[i].rest == "bind"]
+    ids = bind[:transfer_ids] if transfer_ids else bind
     tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress)
     timings["transfer_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    persons = {corpus.identities[i].person_id for i in ids}
+    tm.update(evaluate_decoder(transfer, corpus, [i for i in test if corpus.identities[i].person_id in persons], say))
+    timings["decoder_s"] = time.perf_counter() - t
 
     say("figures")
     t = time.perf_counter()
@@ -181,6 +188,31 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     metrics["meta.analysis_identities"] = [corpus.identities[i].id for i in analysis_identities(corpus)]
     atomic_write_json(out / "metrics.json", metrics)
     atomic_write_text(out / "report.md", _markdown(metrics, lat, singles, figs, ex_figs, corpus, ids))
+    return out
+
+
+def _decoder_section(m: dict, singles: list[str]) -> list[str]:
+    """Section 6b: the decoder's targets (rests, blends, magnitudes, example pairs, oracle and nearest vs mean)."""
+    from latent_model.analysis import decoder_eval
+
+    out = ["## 6b. The decoder: rests, blends, magnitudes, example pairs", "",
+           "Test characters: every held-out person in bind and in each held-out rest configuration; blends, "
+           "magnitudes and example pairs on the persons in bind. Edge strain: how much the prediction stretches or "
+           "crumples the edges that truly move (sum |Δ length| / sum length).", "", decoder_eval.markdown(m)]
+    rows = []
+    for pose in decoder_eval.BROAD:
+        base = f"transfer.neutral_to_pose.{pose}"
+        if f"{base}.mean.explained" in m:
+            mean, near, orc = (m[f"{base}.{s}.explained"] for s in ("mean", "nearest", "oracle"))
+            rows.append([pose, mean, near, orc, "yes" if orc >= mean - 0.02 else "NO",
+                         "nearest" if near > mean else "mean"])
+    if rows:
+        out += ["### Oracle and nearest identity against the mean delta (bind, explained)", "",
+                _table(["pose", "mean", "nearest", "oracle", "oracle ≥ mean − 0.02", "better"], rows), ""]
+    wins = [p for p in singles if m.get(f"transfer.neutral_to_pose.{p}.nearest.explained", -1)
+            > m.get(f"transfer.neutral_to_pose.{p}.mean.explained", 0)]
+    out += [f"Nearest identity beats the mean on {len(wins)} of {len(singles)} single poses"
+            + (f": {', '.join(wins)}." if wins else "."), ""]
     return out
 
 
@@ -293,6 +325,7 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
     out += ["### Corrective pairs (skinning → skinning+blendshape), err mm", "",
             _table(["pose", "no motion", "mean", "nearest", "oracle", "mean raw", "nearest raw", "offset nearest",
                     "gate mean", "gate nearest", "better of mean/nearest not worse than no motion", "raw: not worse"], rows), ""]
+    out += _decoder_section(m, singles)
     out += ["## 7. Rendered predictions", "", "source | mean | nearest | truth; predictions coloured by per-vertex error.", ""]
     out += [f"![{kind} {pose}]({path.name})" for kind, pose, path in ex_figs]
     return "\n".join(out) + "\n"

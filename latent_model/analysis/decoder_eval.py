@@ -1,0 +1,216 @@
+"""The decoder's targets beyond the per-pose tables (issue 18), through the Transfer API, on test characters:
+
+- ``rests``: the broad body poses, mean and nearest delta, per rest configuration (bind and each held-out rest);
+- ``blend``: pose A -> pose B in 0.05 steps: the largest step against the median step, and at 0.5 how much of
+  each pose's true motion its region makes;
+- ``magnitude``: elbowBentLf's delta at magnitude 2 against the rig's 97 degree elbow (elbowSuperBentLf), at 0.5
+  against the rig's 23.5 degrees;
+- ``examples``: transfer from an example pair (`corpus/examples.py`: amplitudes, unseen combinations, unseen
+  joints), the pair made on one test person, judged on the others.
+Flat metrics `decoder.<analysis>....` for metrics.json; `markdown(m)` renders their tables.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from latent_model.analysis.metrics import edge_strain, mesh_errors
+from latent_model.corpus.poses import JointRotation, PoseConfig
+from latent_model.corpus.store import Corpus
+from latent_model.types import FINAL
+
+BROAD = ("elbowBentLf", "elbowBentRt", "kneeBentLf", "kneeBentRt", "clavicleDownwardLf", "shoulderRaiseLf",
+         "shoulderForwardRt", "hipFlexLf", "wristFlexLf", "spineTwistLf", "neckTurnLf", "spineBendFw")
+BLENDS = (("elbowBentLf", "kneeBentLf"), ("shoulderRaiseLf", "hipFlexRt"), ("neckTurnLf", "elbowBentRt"))
+REGION_MM = 10.0  # a blend region: the vertices a pose truly moves by more than this
+HALF_ELBOW = PoseConfig("elbow23.5Lf", "body", joints=(JointRotation("lowerarm01.L", "hinge", 23.5),))
+
+
+class Characters:
+    """Prepared meshes (Transfer.prepare, latent from the corpus's stored samples) of corpus characters."""
+
+    def __init__(self, transfer, corpus: Corpus) -> None:
+        self.t, self.c = transfer, corpus
+        self._m: dict[int, object] = {}
+
+    def neutral(self, i: int):
+        from latent_model.encoding import encode_states
+
+        if i not in self._m:
+            s = self.c.state(i, None, "neutral")
+            mu = encode_states(self.t.model, self.c, [s], self.t.device)[0]
+            self._m[i] = self.t.prepare(self.c.vertices(s), self.c.faces, sdf_faces=self.c.body_faces, mu=mu)
+        return self._m[i]
+
+    def truth(self, i: int, pose: str) -> np.ndarray:
+        return self.c.vertices(self.c.state(i, pose, FINAL))
+
+
+def _errors(pred: np.ndarray, truth: np.ndarray, src: np.ndarray, faces: np.ndarray) -> dict[str, float]:
+    return {**mesh_errors(pred, truth, src), "strain": edge_strain(pred, truth, src, faces)}
+
+
+def _mean(rows: list[dict], prefix: str, out: dict) -> None:
+    for k in rows[0]:
+        out[f"{prefix}.{k}"] = float(np.mean([r[k] for r in rows]))
+
+
+def rest_transfer(transfer, chars: Characters, ids: list[int], poses: tuple[str, ...] = BROAD) -> dict:
+    """decoder.rests.<rest>.<pose|all>.<mean|nearest>.<metric> over the test characters of each rest."""
+    c, out = chars.c, {}
+    poses = tuple(p for p in poses if p in c.poses)
+    by_rest: dict[str, list[int]] = {}
+    for i in ids:
+        by_rest.setdefault(c.identities[i].rest, []).append(i)
+    for rest, members in by_rest.items():
+        rows: dict[tuple[str, str], list[dict]] = {}
+        for i in members:
+            mesh = chars.neutral(i)
+            for p in poses:
+                truth = chars.truth(i, p)
+                for strat, name in (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest")):
+                    e = _errors(transfer.predict(mesh, p, strat), truth, mesh.vertices, c.faces)
+                    rows.setdefault((p, name), []).append(e)
+                    rows.setdefault(("all", name), []).append(e)
+        for (p, name), r in rows.items():
+            _mean(r, f"decoder.rests.{rest}.{p}.{name}", out)
+        out[f"decoder.rests.{rest}.characters"] = len(members)
+    return out
+
+
+def region_fraction(pred: np.ndarray, truth: np.ndarray, src: np.ndarray) -> float:
+    """How much of the true motion of a pose's region (true displacement > REGION_MM) the prediction makes,
+    projected on the truth: 1 = all of it, 0 = none."""
+    d = truth - src
+    region = np.linalg.norm(d, axis=1) * 1000 > REGION_MM
+    t, p = d[region], (pred - src)[region]
+    return float((p * t).sum() / max(float((t * t).sum()), 1e-12))
+
+
+def blend_steps(transfer, chars: Characters, ids: list[int], blends=BLENDS, steps: int = 21) -> dict:
+    """decoder.blend.<A>><B>.{step_ratio, step_max_mm, half_A, half_B}: the worst character's step ratio
+    (largest step / median step of the sweep), the mean step, the mean fractions at 0.5."""
+    out = {}
+    for a, b in blends:
+        if a not in chars.c.poses or b not in chars.c.poses:
+            continue
+        ratios, largest, half_a, half_b = [], [], [], []
+        for i in ids:
+            mesh = chars.neutral(i)
+            sweep = [transfer.predict(mesh, a, pose_b=b, blend=float(x)) for x in np.linspace(0, 1, steps)]
+            moves = np.array([np.linalg.norm(y - x, axis=1).max() for x, y in zip(sweep, sweep[1:])]) * 1000
+            ratios.append(float(moves.max() / max(np.median(moves), 1e-9)))
+            largest.append(float(moves.max()))
+            half = sweep[steps // 2]
+            half_a.append(region_fraction(half, chars.truth(i, a), mesh.vertices))
+            half_b.append(region_fraction(half, chars.truth(i, b), mesh.vertices))
+        key = f"decoder.blend.{a}>{b}"
+        out.update({f"{key}.step_ratio": max(ratios), f"{key}.step_ratio_median": float(np.median(ratios)),
+                    f"{key}.step_max_mm": max(largest), f"{key}.half_a": float(np.mean(half_a)),
+                    f"{key}.half_b": float(np.mean(half_b))})
+    return out
+
+
+def magnitude_truths(transfer, chars: Characters, ids: list[int], generator) -> dict:
+    """decoder.magnitude.{x2, x0.5}.<metric>: elbowBentLf's mean delta scaled, against the rig's own elbow at
+    97 degrees (elbowSuperBentLf) and at 23.5 degrees."""
+    c, rows = chars.c, {"x2": [], "x0.5": []}
+    for i in ids:
+        mesh = chars.neutral(i)
+        spec = c.identities[i]
+        half = getattr(generator.pose(spec, HALF_ELBOW), FINAL).astype(np.float32)
+        for name, m, truth in (("x2", 2.0, chars.truth(i, "elbowSuperBentLf")), ("x0.5", 0.5, half)):
+            rows[name].append(_errors(transfer.predict(mesh, "elbowBentLf", magnitude=m), truth, mesh.vertices, c.faces))
+    out = {}
+    for name, r in rows.items():
+        _mean(r, f"decoder.magnitude.{name}", out)
+    return out
+
+
+def example_transfer(transfer, chars: Characters, ids: list[int], generator, examples=None) -> dict:
+    """decoder.examples.<name>.<metric>: each example made on the first test person (the user's pair, prepared
+    like a user's meshes) and transferred to the others' neutral meshes, against the rig's truth on them."""
+    from latent_model.corpus.examples import EXAMPLES, example_pair
+
+    c, out = chars.c, {}
+    specs = [c.identities[i] for i in ids]
+    for name in examples or EXAMPLES:
+        pair = example_pair(generator, specs, name, specs[0].rest)
+        a = transfer.prepare(pair.source_neutral, c.faces, sdf_faces=c.body_faces)
+        a1 = transfer.prepare(pair.source_deformed, c.faces, sdf_faces=c.body_faces)
+        delta = transfer.example_delta(a, a1)
+        rows = []
+        for i, spec in zip(ids[1:], specs[1:]):
+            mesh = chars.neutral(i)
+            truth = pair.targets[spec.id][1]
+            rows.append(_errors(transfer.predict(mesh, None, delta=delta), truth, mesh.vertices, c.faces))
+        _mean(rows, f"decoder.examples.{name}", out)
+        out[f"decoder.examples.{name}.kind"] = pair.example.kind
+    return out
+
+
+def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None) -> dict:
+    """Every analysis above on the test characters `ids` (rests: all of them; the others: those in bind)."""
+    from latent_model.corpus.states import StateGenerator
+
+    chars = Characters(transfer, corpus)
+    bind = [i for i in ids if corpus.identities[i].rest == "bind"]
+    generator = StateGenerator()
+    out: dict = {}
+    say(f"decoder: broad poses in every rest ({len(ids)} characters)")
+    out.update(rest_transfer(transfer, chars, ids))
+    say("decoder: blends")
+    out.update(blend_steps(transfer, chars, bind))
+    if {"elbowBentLf", "elbowSuperBentLf"} <= set(corpus.poses):
+        say("decoder: magnitudes")
+        out.update(magnitude_truths(transfer, chars, bind, generator))
+    if len(bind) >= 2:
+        say("decoder: example pairs")
+        out.update(example_transfer(transfer, chars, bind, generator))
+    return out
+
+
+def _f(v: float, digits: int = 2) -> str:
+    return f"{v:.{digits}f}"
+
+
+def markdown(m: dict) -> str:
+    """The decoder's tables (empty when the metrics have none)."""
+    lines: list[str] = []
+    rests = sorted({k.split(".")[2] for k in m if k.startswith("decoder.rests.")}, key=lambda r: (r != "bind", r))
+    if rests:
+        lines += ["### Broad body poses by rest configuration (mean delta / nearest identity)", "",
+                  "| rest | characters | explained (mean) | leak mm | edge strain % | explained (nearest) |",
+                  "|---|---|---|---|---|---|"]
+        for r in rests:
+            k = f"decoder.rests.{r}.all"
+            lines.append(f"| {r} | {m[f'decoder.rests.{r}.characters']} | {_f(m[f'{k}.mean.explained'])} | "
+                         f"{_f(m[f'{k}.mean.leak_mm'])} | {_f(m[f'{k}.mean.strain'], 1)} | {_f(m[f'{k}.nearest.explained'])} |")
+        lines.append("")
+    blends = sorted({k.rsplit(".", 1)[0] for k in m if k.startswith("decoder.blend.")})
+    if blends:
+        lines += ["### Pose blends in 0.05 steps", "",
+                  "| A → B | largest / median step (worst character) | largest step mm | A's region at 0.5 | B's at 0.5 |",
+                  "|---|---|---|---|---|"]
+        for b in blends:
+            lines.append(f"| {b.split('.', 2)[2].replace('>', ' → ')} | {_f(m[f'{b}.step_ratio'])} | "
+                         f"{_f(m[f'{b}.step_max_mm'], 1)} | {_f(m[f'{b}.half_a'])} | {_f(m[f'{b}.half_b'])} |")
+        lines.append("")
+    if "decoder.magnitude.x2.explained" in m:
+        lines += ["### Magnitude against the rig", "", "| elbowBentLf delta | truth | explained | leak mm | edge strain % |",
+                  "|---|---|---|---|---|"]
+        for name, truth in (("x2", "elbowSuperBentLf (97°)"), ("x0.5", "the rig's 23.5°")):
+            k = f"decoder.magnitude.{name}"
+            lines.append(f"| {name} | {truth} | {_f(m[f'{k}.explained'])} | {_f(m[f'{k}.leak_mm'])} | {_f(m[f'{k}.strain'], 1)} |")
+        lines.append("")
+    examples = sorted({k.split(".")[2] for k in m if k.startswith("decoder.examples.")})
+    if examples:
+        lines += ["### Transfer from an example pair (outside the vocabulary)", "",
+                  "| example | kind | explained | leak mm | edge strain % |", "|---|---|---|---|---|"]
+        for e in examples:
+            k = f"decoder.examples.{e}"
+            lines.append(f"| {e} | {m[f'{k}.kind']} | {_f(m[f'{k}.explained'])} | {_f(m[f'{k}.leak_mm'])} | "
+                         f"{_f(m[f'{k}.strain'], 1)} |")
+        lines.append("")
+    return "\n".join(lines)
