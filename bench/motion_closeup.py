@@ -36,7 +36,7 @@ def main() -> None:
     from latent_model.checkpoint import load_checkpoint
     from latent_model.config import data_root, default_corpus_dir
     from latent_model.corpus.store import Corpus
-    from latent_model.nn.motion_decoder import MotionDecoder
+    from latent_model.nn.motion_decoder import N_COORD_FREQ, MotionDecoder
     from latent_model.render import draw_mesh
     from latent_model.shipped import ShippedPaths
     from latent_model.train.motion import CharacterCache, DeltaTable, pair_inputs, predict
@@ -51,7 +51,8 @@ def main() -> None:
     hidden = state["inp.weight"].shape[0]
     dec = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=hidden, cond=state["cond.0.weight"].shape[0],
                         layers=sum(k.startswith("hidden.") and k.endswith(".weight") for k in state),
-                        world=state["out.weight"].shape[0] == 15, mu_dims=state["mu_basis"].shape[0])
+                        world=state["out.weight"].shape[0] == 15, mu_dims=state["mu_basis"].shape[0],
+                        local_inputs=state["inp.weight"].shape[1] > 6 + 12 * N_COORD_FREQ)
     dec.load_state_dict(state)
     dec.eval()
     train = c.split_indices("train")

@@ -29,7 +29,11 @@ def main() -> None:
     ap.add_argument("--world", action="store_true", help="also world-axis rotation and translation outputs")
     ap.add_argument("--mu-dims", type=int, default=8, help="principal components of mu_src read (0: none)")
     ap.add_argument("--mu-noise", type=float, default=1.0)
+    ap.add_argument("--no-local", action="store_true", help="no normal / medial-offset inputs")
     ap.add_argument("--edge", type=float, default=None, help="weight of the neighbour term (default: the config's)")
+    ap.add_argument("--smooth", default="0", help="comma-separated smoothing iterations of the motion at inference, "
+                    "each reported in the final table")
+    ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
     from latent_model.analysis.metrics import edge_strain, mesh_errors
@@ -37,7 +41,7 @@ def main() -> None:
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.poses import POSES
     from latent_model.corpus.store import Corpus
-    from latent_model.nn.motion_decoder import MotionDecoder
+    from latent_model.nn.motion_decoder import MotionDecoder, surface_smoother
     from latent_model.shipped import ShippedPaths
     from latent_model.config import MotionDecoderConfig
     from latent_model.train.motion import CharacterCache, DeltaTable, pair_inputs, predict, train_motion_decoder
@@ -65,7 +69,7 @@ def main() -> None:
     print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
-                            mu_dims=args.mu_dims, mu_noise=args.mu_noise)
+                            mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local)
     decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train])).float())
 
     def validate(dec) -> dict:
@@ -82,25 +86,33 @@ def main() -> None:
     extra = {} if args.edge is None else {"edge": args.edge}
     cfg = MotionDecoderConfig(steps=args.steps, batch=args.batch, vertices=args.vertices, **extra)
     t = time.perf_counter()
-    train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
-                         validate_every=max(args.steps // 3, 1))
-    print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
-    print(f"{'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}")
-    allc: dict[str, list] = {}
-    for p in broad:
-        cells = {}
-        for i in val:
-            v = cache.get(i)[0]
-            pred, truth = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p])), c.vertices(c.state(i, p, FINAL))
-            e = {**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)}
-            cells.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
-            allc.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
-        print(f"{p:20s}" + "".join(f" {np.mean([e['explained'] for e in cells[g]]):7.2f} / "
-                                   f"{np.mean([e['leak_mm'] for e in cells[g]]):5.2f} / "
-                                   f"{np.mean([e['strain'] for e in cells[g]]):5.1f}" for g in ("bind", "rest")))
-    print(f"{'mean':20s}" + "".join(f" {np.mean([e['explained'] for e in allc[g]]):7.3f} / "
-                                    f"{np.mean([e['leak_mm'] for e in allc[g]]):5.2f} / "
-                                    f"{np.mean([e['strain'] for e in allc[g]]):5.1f}" for g in ("bind", "rest")))
+    if args.load:
+        decoder.load_state_dict(torch.load(args.load))
+    else:
+        train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
+                             validate_every=max(args.steps // 3, 1))
+        print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
+    n_v = len(cache.get(val[0])[0])
+    for it in (int(x) for x in args.smooth.split(",")):
+        smooth = surface_smoother(c.faces, n_v, it)
+        print(f"smoothing {it}: {'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}")
+        allc: dict[str, list] = {}
+        for p in broad:
+            cells = {}
+            for i in val:
+                v = cache.get(i)[0]
+                pred = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p]), smooth)
+                truth = c.vertices(c.state(i, p, FINAL))
+                e = {**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)}
+                g = "bind" if c.identities[i].rest == "bind" else "rest"
+                cells.setdefault(g, []).append(e)
+                allc.setdefault(g, []).append(e)
+            print(f"{p:20s}" + "".join(f" {np.mean([e['explained'] for e in cells[g]]):7.2f} / "
+                                       f"{np.mean([e['leak_mm'] for e in cells[g]]):5.2f} / "
+                                       f"{np.mean([e['strain'] for e in cells[g]]):5.1f}" for g in ("bind", "rest")))
+        print(f"{'mean':20s}" + "".join(f" {np.mean([e['explained'] for e in allc[g]]):7.3f} / "
+                                        f"{np.mean([e['leak_mm'] for e in allc[g]]):5.2f} / "
+                                        f"{np.mean([e['strain'] for e in allc[g]]):5.1f}" for g in ("bind", "rest")))
     if args.save:
         torch.save(decoder.state_dict(), args.save)
 

@@ -61,8 +61,8 @@ class PoseFieldsConfig:
 
 @dataclass(frozen=True)
 class MotionDecoderConfig:
-    """Decoder v2 (nn/motion_decoder.py), trained after the fields in Phase B (train/motion.py). Off in the
-    shipped (corpus v3) model."""
+    """Decoder v2 (nn/motion_decoder.py), trained after the network in Phase B (train/motion.py). On in
+    `standard` (corpus v4); off in the shipped corpus-v3 model and by default."""
 
     enabled: bool = False  # build and train it; Transfer then predicts `kinds` with it
     kinds: tuple[PairKind, ...] = ("neutral_to_pose",)  # pair kinds it predicts at inference
@@ -72,12 +72,15 @@ class MotionDecoderConfig:
     world: bool = True  # also a rotation and translation in world axes (the torso has no limb axis)
     mu_dims: int = 8  # mu_src is read through this many whitened principal components (0: not read)
     mu_noise: float = 1.0  # std of the noise on them in training (in their std units)
-    steps: int = 4000  # training steps
+    local_inputs: bool = False  # also read each vertex's normal and medial offset (they made neighbours disagree)
+    smooth: int = 40  # at inference, rounds of averaging the per-vertex motion over surface neighbours
+    poses: str = "body"  # the poses it trains on: "body" (skeletal single poses and their combos) or "all"
+    steps: int = 6000  # training steps
     batch: int = 16  # pairs per step
     vertices: int = 1024  # vertices per pair per step (half where the pair moves the surface)
     lr: float = 1e-3  # learning rate (cosine decay to 5 %)
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
-    edge: float = 5.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
+    edge: float = 0.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
     edge_rings: int = 3  # a vertex's partner in that term is within this many edges
 
     def __post_init__(self) -> None:
@@ -202,7 +205,9 @@ def preset(name: str) -> Preset:
                             b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
         return Preset(name, corpus, model, train)
     if name == "standard":
-        return Preset(name, corpus, ModelConfig(**sizes))
+        # decoder v2 predicts neutral_to_pose; the network the other kinds, in fewer steps (the 90 min budget)
+        model = ModelConfig(motion=MotionDecoderConfig(enabled=True), **sizes)
+        return Preset(name, corpus, model, TrainConfig(b_steps=2000))
     if name == "paper":
         model = ModelConfig(enc_hidden=(128, 256), sdf_hidden=512, sdf_layers=8,
                             decoder=VertexDecoderConfig(hidden=128, cond=256, bones=32, knn=12, edge=64), **sizes)

@@ -26,6 +26,7 @@ import torch
 from latent_model.bank import LatentBank
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
 from latent_model.nn.delta import normalised_delta
+from latent_model.nn.motion_decoder import surface_smoother
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
@@ -285,6 +286,8 @@ class Transfer:
                     "normals": t(mesh.normals), "medial": t(sf.medial)}
 
         x = mesh.cache("motion", dev, tensors)
+        smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
+                                                                          self.model.cfg.motion.smooth))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
-        out = dec(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k)
+        out = dec(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k, smooth=smooth)
         return out[0].cpu().numpy()

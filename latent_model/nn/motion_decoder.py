@@ -53,7 +53,7 @@ class MotionDecoder(nn.Module):
     """(surface features of V_src, mu_src, delta direction, r, kind) -> V_hat."""
 
     def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
-                 world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0) -> None:
+                 world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0, local_inputs: bool = True) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
@@ -63,7 +63,10 @@ class MotionDecoder(nn.Module):
         self.register_buffer("mu_mean", torch.zeros(latent))
         self.register_buffer("mu_basis", torch.zeros(mu_dims, latent))  # (k, Z) rows: components / their std
         self.cond = mlp([mu_dims + latent + 16, cond, cond], final_act=True)
-        n_in = 6 + 12 * N_COORD_FREQ + 3 + 3
+        # local_inputs: also the normal and the medial offset (they differ between neighbours: a part's
+        # vertices then get different motions); without, the motion is a smooth function of where on the body
+        self.local_inputs = local_inputs
+        n_in = 6 + 12 * N_COORD_FREQ + (6 if local_inputs else 0)
         self.inp = nn.Linear(n_in, hidden)
         self.hidden = nn.ModuleList(nn.Linear(hidden, hidden) for _ in range(layers))
         self.film = nn.Linear(cond, 2 * hidden * (layers + 1))
@@ -103,7 +106,9 @@ class MotionDecoder(nn.Module):
         """Per-vertex (w, o, u) in the limb frame (B, N, 9) from coords (B, N, 6), frames (B, N, 3, 3),
         world normals and medial - x (B, N, 3), condition (B, C)."""
         to_local = lambda x: torch.einsum("bnij,bni->bnj", frames, x)  # noqa: E731  F^T x
-        x = torch.cat([coord_features(coords), to_local(normals), to_local(medial_offset) * 10.0], dim=-1)
+        x = coord_features(coords)
+        if self.local_inputs:
+            x = torch.cat([x, to_local(normals), to_local(medial_offset) * 10.0], dim=-1)
         film = self.film(c).reshape(c.shape[0], 1, self.n_layers + 1, 2, -1)
         h = self.inp(x)
         for k, layer in enumerate([None, *self.hidden]):
@@ -114,10 +119,12 @@ class MotionDecoder(nn.Module):
 
     def forward(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                 medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
-                kind: torch.Tensor, c: torch.Tensor | None = None) -> torch.Tensor:
+                kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None) -> torch.Tensor:
         """v_src, normals, medial (B, N, 3); coords (B, N, 6); frames (B, N, 3, 3); mu_src, delta_dir (B, Z);
         r (B,) the delta's length in mean training lengths; kind (B,). -> V_hat (B, N, 3).
-        `c`: a cached `condition(...)` (the explorer's sliders change r only)."""
+        `c`: a cached `condition(...)` (the explorer's sliders change r only). `smooth`: on a whole mesh, a
+        function averaging per-vertex (B, N, k) values over surface neighbourhoods (`surface_smoother`): the
+        rotations, pivots and translations are averaged before they act, so a part's vertices share one motion."""
         if c is None:
             c = self.condition(mu_src, delta_dir, kind)
         m = self.motion(coords, frames, normals, medial - v_src, c)
@@ -127,5 +134,33 @@ class MotionDecoder(nn.Module):
         if self.world:
             w, u = w + m[..., 9:12] * r, u + m[..., 12:15] * 0.1 * r
         pivot = medial + o
+        if smooth is not None:
+            w, pivot, u = smooth(torch.cat([w, pivot, u], dim=-1)).split(3, dim=-1)
         turn = axis_angle_to_matrix(w) - torch.eye(3, dtype=w.dtype, device=w.device)  # exactly 0 at r = 0
         return v_src + torch.einsum("bnij,bnj->bni", turn, v_src - pivot) + u
+
+
+def surface_smoother(faces, n_vertices: int, iterations: int):
+    """A function (B, N, k) -> (B, N, k): `iterations` rounds of averaging each vertex with its edge
+    neighbours (N = n_vertices, any topology); None when iterations is 0."""
+    import numpy as np
+    import scipy.sparse as sp
+
+    if iterations <= 0:
+        return None
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
+    a = ((a + a.T) > 0).astype(np.float64) + sp.eye(n_vertices)
+    a = (sp.diags(1.0 / np.asarray(a.sum(axis=1)).ravel()) @ a).tocoo()
+    op = torch.sparse_coo_tensor(np.stack([a.row, a.col]), a.data.astype(np.float32), (n_vertices, n_vertices),
+                                 check_invariants=True).coalesce()
+
+    def smooth(x: torch.Tensor) -> torch.Tensor:
+        b, n, k = x.shape
+        y = x.permute(1, 0, 2).reshape(n, b * k)
+        for _ in range(iterations):
+            y = torch.sparse.mm(op, y)
+        return y.reshape(n, b, k).permute(1, 0, 2)
+
+    return smooth

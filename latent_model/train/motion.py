@@ -54,11 +54,15 @@ class DeltaTable:
     """Latent means of the neutral and final states of characters, their deltas and the mean per pose."""
 
     def __init__(self, model, corpus: Corpus, ids: list[int], train_ids: list[int], poses: tuple[str, ...],
-                 device: torch.device) -> None:
+                 device: torch.device, mu_rows: torch.Tensor | None = None) -> None:
+        """`mu_rows`: the frozen encoder's means by geometry row when Phase B has them (else encoded here)."""
         c = corpus
         rows = sorted({c.row(c.state(i, None, "neutral")) for i in ids}
                       | {c.row(c.state(i, p, FINAL)) for i in ids for p in poses})
-        mu = encode_rows(model, c, rows, device, progress=False).numpy()
+        if mu_rows is not None and bool((mu_rows[rows].abs().sum(dim=1) > 0).all()):
+            mu = mu_rows.cpu().numpy()
+        else:
+            mu = encode_rows(model, c, rows, device, progress=False).numpy()
         self.mu_neutral = {i: mu[c.row(c.state(i, None, "neutral"))] for i in ids}
         self.delta = {(i, p): mu[c.row(c.state(i, p, FINAL))] - self.mu_neutral[i] for i in ids for p in poses}
         self.mean = {p: np.mean([self.delta[(i, p)] for i in train_ids], axis=0) for p in poses}
@@ -102,14 +106,15 @@ def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, del
             "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose"))}
 
 
-def predict(decoder: MotionDecoder, inputs: dict) -> np.ndarray:
-    """One prediction in eval mode (no training noise), leaving the decoder's mode as it was."""
+def predict(decoder: MotionDecoder, inputs: dict, smooth=None) -> np.ndarray:
+    """One prediction on a whole mesh in eval mode (no training noise), leaving the decoder's mode as it was;
+    `smooth`: `surface_smoother(...)` of the mesh."""
     b = _batch_tensors([inputs])
     was = decoder.training
     decoder.eval()
     with torch.no_grad():
         out = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
-                      b["delta_dir"], b["r"], b["kind"])
+                      b["delta_dir"], b["r"], b["kind"], smooth=smooth)
     decoder.train(was)
     return out[0].numpy()
 
@@ -163,15 +168,32 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
     return history
 
 
+def training_poses(corpus: Corpus, which: str) -> tuple[str, ...]:
+    """The corpus poses the motion decoder trains on: "all", or "body" (poses of the body group and the combos
+    made only of them: the face and finger poses' deltas are at the latent noise floor, issue 19)."""
+    from latent_model.corpus.poses import get_pose
+
+    if which == "all":
+        return tuple(corpus.poses)
+    if which != "body":
+        raise ValueError(f"MotionDecoderConfig.poses {which!r}: use 'body' or 'all'")
+
+    def body(name: str) -> bool:
+        p = get_pose(name)
+        return all(get_pose(c).group == "body" for c in p.components) if p.is_combo else p.group == "body"
+
+    return tuple(p for p in corpus.poses if body(p))
+
+
 def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: torch.device,
-                       progress: bool = True) -> list[dict]:
-    """Phase B's motion-decoder part (encoder frozen): every pose of the corpus, neutral_to_pose pairs of
-    the training characters; sets the decoder's delta scale. Surface features cached in run_dir."""
+                       progress: bool = True, mu_rows: torch.Tensor | None = None) -> list[dict]:
+    """Phase B's motion-decoder part (encoder frozen): neutral_to_pose pairs of the training characters and
+    the config's poses; sets the decoder's delta scale and mu_src read-out. Surface features cached in run_dir."""
     m = preset.model.motion
     dec = model.motion_decoder
     train_ids = corpus.split_indices("train")
-    poses = tuple(corpus.poses)
-    table = DeltaTable(model, corpus, train_ids, train_ids, poses, device)
+    poses = training_poses(corpus, m.poses)
+    table = DeltaTable(model, corpus, train_ids, train_ids, poses, device, mu_rows)
     dec.delta_scale.fill_(table.scale)
     dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train_ids])).float())
     cache = CharacterCache(corpus, Path(run_dir) / "surface")

@@ -133,7 +133,7 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
     if model.motion_decoder is not None and rank == 0:
         from latent_model.train.motion import train_motion_phase
 
-        train_motion_phase(model, preset, corpus, run_dir, device, progress=progress)
+        train_motion_phase(model, preset, corpus, run_dir, device, progress=progress, mu_rows=mu_rows)
     return out
 
 
