@@ -17,7 +17,7 @@ from latent_model.config import Preset
 from latent_model.errors import UserFacingError
 
 FORMAT_VERSION = 2
-PHASE_B_PREFIXES = ("vertex_decoder.", "pose_fields.")
+PHASE_B_PREFIXES = ("vertex_decoder.", "pose_fields.", "motion_decoder.")
 
 
 class CheckpointError(UserFacingError, RuntimeError):

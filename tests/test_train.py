@@ -139,3 +139,23 @@ def test_field_fit_counts_every_pair_once_whatever_its_latent_amount(run_a, tiny
     assert torch.equal(base, fitted(doubled)[0])
     away, n_away = fitted(flipped)
     assert n_away == n - 1 and not torch.allclose(base, away)
+
+
+def test_phase_b_with_the_motion_decoder_starts_from_a_phase_a_checkpoint(run_a, tiny_corpus, tmp_path):
+    """A preset with decoder v2 loads the Phase A checkpoint (whose motion decoder, untrained or absent, is
+    Phase B's), runs the network and the motion part, and keeps the encoder."""
+    import dataclasses
+    import shutil
+
+    from latent_model.checkpoint import load_phase_a
+
+    run, p, _ = run_a
+    motion = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=5, batch=2, vertices=64)
+    pm = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=motion))
+    shutil.copy(run / "phase_a.safetensors", tmp_path / "phase_a.safetensors")
+    model = LatentReRig(pm.model)
+    load_phase_a(tmp_path / "phase_a.safetensors", model, expect=pm)
+    enc = {k: v.clone() for k, v in model.encoder.state_dict().items()}
+    train_phase_b(model, pm, tiny_corpus, tmp_path, torch.device("cpu"), steps=2, progress=False)
+    assert float(model.motion_decoder.delta_scale) > 0 and model.motion_decoder.mu_basis.abs().sum() > 0
+    assert all(torch.equal(v, model.encoder.state_dict()[k]) for k, v in enc.items())
