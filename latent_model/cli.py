@@ -168,6 +168,17 @@ def cmd_rests(args) -> None:
         print(f"  {r.line()}")
 
 
+def cmd_identities(args) -> None:
+    """Write the corpus's identity specs and pose names (what the explorer regenerates held-out truth from)."""
+    from latent_model.atomic import atomic_write_json
+
+    c = _open_corpus(args)
+    m = c.manifest
+    atomic_write_json(Path(args.output), {"preset": m.get("preset", args.preset), "poses": list(c.poses),
+                                          "identities": m["identities"]})
+    print(f"wrote {args.output}: {len(m['identities'])} characters, {len(c.poses)} poses")
+
+
 def cmd_examples(args) -> None:
     from latent_model.corpus.examples import EXAMPLES, example_pair, get_example
     from latent_model.corpus.rests import get_rest
@@ -331,6 +342,10 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--examples", help="comma-separated example names (default: all)")
     ex.add_argument("--rest", default="bind", help="rest configuration they stand in (default bind)")
     ex.set_defaults(func=cmd_examples)
+
+    ids = with_corpus(cs.add_parser("identities", help="write the identity specs (assets/identities.json) of a corpus"))
+    ids.add_argument("-o", "--output", required=True, help="output JSON, e.g. assets/identities.json")
+    ids.set_defaults(func=cmd_identities)
 
     rs = cs.add_parser("rests", help="the rest configurations (arms, elbows, legs, spine angles) and which are held out")
     rs.set_defaults(func=cmd_rests)
