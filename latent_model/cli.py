@@ -298,6 +298,9 @@ def cmd_bank(args) -> None:
     out = Path(args.out)
     bank.save(out)
     print(f"latent bank of {len(bank.keys)} training states, {len(bank.deltas)} (pair kind, pose) deltas -> {out}")
+    print(f"noise floor {bank.noise_floor:.3f}; out-of-distribution threshold "
+          + (f"{bank.ood_threshold:.2f} (the farthest validation character's distance to the training states)"
+             if bank.ood_threshold > 0 else "none (the corpus has no validation split)"))
 
 
 def build_parser() -> argparse.ArgumentParser:

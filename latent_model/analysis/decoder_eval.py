@@ -150,6 +150,28 @@ def example_transfer(transfer, chars: Characters, ids: list[int], generator, exa
     return out
 
 
+def novelty_check(transfer, chars: Characters, ids: list[int], bind: list[int], scales=(1.15, 1.3)) -> dict:
+    """decoder.novelty.*: the bank's out-of-distribution threshold, the test characters' distances to the
+    training states and how many are flagged, and how many of the bind ones scaled up about their centre are."""
+    bank = transfer.bank
+    out = {"decoder.novelty.threshold": float(bank.ood_threshold)}
+    d = [transfer.novelty(chars.neutral(i)).distance for i in ids]
+    out.update({"decoder.novelty.test_max": float(max(d)), "decoder.novelty.test_median": float(np.median(d)),
+                "decoder.novelty.test_flagged": int(sum(x > bank.ood_threshold for x in d)) if bank.ood_threshold else 0,
+                "decoder.novelty.test_n": len(d)})
+    c = chars.c
+    for s in scales:
+        flagged = 0
+        for i in bind:
+            v = chars.neutral(i).vertices
+            centre = v.mean(axis=0)
+            n = transfer.novelty(transfer.prepare((v - centre) * s + centre, c.faces, sdf_faces=c.body_faces))
+            flagged += n.out_of_distribution
+        out[f"decoder.novelty.scaled_{s:g}_flagged"] = int(flagged)
+    out["decoder.novelty.scaled_n"] = len(bind)
+    return out
+
+
 def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None) -> dict:
     """Every analysis above on the test characters `ids` (rests: all of them; the others: those in bind)."""
     from latent_model.corpus.states import StateGenerator
@@ -168,6 +190,8 @@ def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[st
     if len(bind) >= 2:
         say("decoder: example pairs")
         out.update(example_transfer(transfer, chars, bind, generator))
+    say("decoder: out-of-distribution check")
+    out.update(novelty_check(transfer, chars, ids, bind))
     return out
 
 
@@ -213,4 +237,12 @@ def markdown(m: dict) -> str:
             lines.append(f"| {e} | {m[f'{k}.kind']} | {_f(m[f'{k}.explained'])} | {_f(m[f'{k}.leak_mm'])} | "
                          f"{_f(m[f'{k}.strain'], 1)} |")
         lines.append("")
+    if "decoder.novelty.threshold" in m and m["decoder.novelty.threshold"] > 0:
+        lines += ["### Out-of-distribution warning", "",
+                  f"Threshold {m['decoder.novelty.threshold']:.2f} (standardised latent distance to the nearest training "
+                  f"state; the farthest validation character's). Test characters: median {m['decoder.novelty.test_median']:.2f}, "
+                  f"max {m['decoder.novelty.test_max']:.2f}, flagged {m['decoder.novelty.test_flagged']} of "
+                  f"{m['decoder.novelty.test_n']}. Bind test characters scaled up about their centre, flagged: "
+                  + ", ".join(f"×{k.split('_')[1]}: {v} of {m['decoder.novelty.scaled_n']}" for k, v in m.items()
+                              if k.startswith("decoder.novelty.scaled_") and k.endswith("_flagged")) + ".", ""]
     return "\n".join(lines)
