@@ -61,10 +61,10 @@ class PoseFieldsConfig:
 
 @dataclass(frozen=True)
 class MotionDecoderConfig:
-    """Decoder v2 (nn/motion_decoder.py), trained after the network in Phase B (train/motion.py). On in
-    `standard` (corpus v4); off in the shipped corpus-v3 model and by default."""
+    """Decoder v2 (nn/motion_decoder.py), trained after the network in Phase B (train/motion.py); it predicts
+    neutral_to_pose (the corpus-v3 model, trained before it existed, has none)."""
 
-    enabled: bool = False  # build and train it; Transfer then predicts `kinds` with it
+    enabled: bool = True  # build and train it; Transfer then predicts `kinds` with it
     kinds: tuple[PairKind, ...] = ("neutral_to_pose",)  # pair kinds it predicts at inference
     hidden: int = 128  # per-vertex MLP width
     cond: int = 256  # width of the condition (mu_src, delta direction, pair kind)
@@ -149,7 +149,7 @@ class TrainConfig:
     a_enc_points: int = 2048  # SDF samples fed to the encoder per state (subset of K)
     a_query_points: int = 256  # SDF decoder queries per state
     a_lr: float = 1e-3  # Phase A learning rate
-    b_steps: int = 3000  # Phase B steps
+    b_steps: int = 2000  # Phase B network steps (decoder v2 predicts neutral_to_pose: 3000 before it)
     b_batch: int = 4  # pairs per Phase B step
     b_lr: float = 1e-3  # Phase B learning rate
     b_kinds: tuple[PairKind, ...] = PAIR_KINDS  # pair kinds Phase B draws from (uniformly)
@@ -189,7 +189,10 @@ class Preset:
 
     @staticmethod
     def from_dict(d: dict) -> "Preset":
-        return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), _from_dict(ModelConfig, d["model"]),
+        model = _from_dict(ModelConfig, d["model"])
+        if "motion" not in d["model"]:  # stored before decoder v2 existed: the model has none
+            model = dataclasses.replace(model, motion=MotionDecoderConfig(enabled=False))
+        return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), model,
                       _from_dict(TrainConfig, d["train"]), _from_dict(LossWeights, d["loss"]))
 
 
@@ -200,17 +203,17 @@ def preset(name: str) -> Preset:
     if name == "tiny":
         model = ModelConfig(latent=32, enc_hidden=(32, 64), enc_heads=2, enc_out_hidden=64, sdf_hidden=64, sdf_layers=4,
                             decoder=VertexDecoderConfig(hidden=16, cond=32, bones=4, knn=6, edge=8),
-                            fields=PoseFieldsConfig(features=64, fit_vertices=200), **sizes)
+                            fields=PoseFieldsConfig(features=64, fit_vertices=200),
+                            motion=MotionDecoderConfig(hidden=32, cond=32, steps=30, batch=2, vertices=128), **sizes)
         train = TrainConfig(a_steps=30, a_identities=2, a_poses=3, a_enc_points=256, a_query_points=128,
                             b_steps=20, b_batch=2, checkpoint_every=10, log_every=5)
         return Preset(name, corpus, model, train)
     if name == "standard":
-        # decoder v2 predicts neutral_to_pose; the network the other kinds, in fewer steps (the 90 min budget)
-        model = ModelConfig(motion=MotionDecoderConfig(enabled=True), **sizes)
-        return Preset(name, corpus, model, TrainConfig(b_steps=2000))
+        return Preset(name, corpus, ModelConfig(**sizes))
     if name == "paper":
         model = ModelConfig(enc_hidden=(128, 256), sdf_hidden=512, sdf_layers=8,
-                            decoder=VertexDecoderConfig(hidden=128, cond=256, bones=32, knn=12, edge=64), **sizes)
+                            decoder=VertexDecoderConfig(hidden=128, cond=256, bones=32, knn=12, edge=64),
+                            motion=MotionDecoderConfig(hidden=256, cond=512, steps=20000, batch=32, vertices=2048), **sizes)
         train = TrainConfig(a_steps=20000, a_identities=8, a_poses=8, a_enc_points=8192, a_query_points=2048,
                             b_steps=20000, b_batch=8)
         return Preset(name, corpus, model, train)
