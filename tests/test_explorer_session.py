@@ -292,10 +292,9 @@ def test_opened_mesh_has_no_truth_and_exports_in_its_frame(session, tmp_path):
 
 @needs_model
 def test_the_window_shows_the_truth_the_shipped_model_was_trained_on(session):
-    """The window regenerates held-out ground truth through today's rig. The shipped model was
-    trained on corpus generator 3, before rest configurations existed: the truth the window shows
-    for its held-out identities must still be that corpus's geometry (300 vertices of it stored in
-    tests/data), not a rest-configured or otherwise changed one."""
+    """The window regenerates held-out ground truth through today's rig. Corpus v4 keeps every person's
+    bind-rest character bit for bit as generator 3 made it: the truth the window shows for the shipped
+    model's bind characters must still be that geometry (300 vertices of it stored in tests/data)."""
     ref = np.load(Path(__file__).parent / "data" / "bind_geometry_v3.npz")
     idx = ref["vertex_index"]
     checked = 0

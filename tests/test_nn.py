@@ -216,22 +216,20 @@ def test_presets_are_the_shipped_design_at_three_sizes():
     assert std.model.fields.only_kinds == ("neutral_to_pose",)
 
 
-def test_the_shipped_checkpoint_is_the_standard_design_on_corpus_v3():
-    """The defaults describe the model that ships: its stored preset is `preset("standard")` but for
-    what corpus v4 changed. It was trained on generator 3's corpus (no rests, no validation split:
-    64 identity classes) and is retrained on v4 by the decoder issue."""
-    import dataclasses
+def test_the_shipped_checkpoint_is_the_standard_preset_on_corpus_v4():
+    """The defaults describe the model that ships: its stored preset is `preset("standard")`, decoder v2
+    included, and it was trained on generator 4's corpus (rests, a validation split)."""
+    import json
 
-    from latent_model.checkpoint import stored_preset
+    from latent_model.checkpoint import read_metadata, stored_preset
+    from latent_model.corpus.config import GENERATOR_VERSION
     from latent_model.shipped import ShippedPaths
 
-    stored, std = stored_preset(ShippedPaths.at().checkpoint), preset("standard")
-    motion = dataclasses.replace(std.model.motion, enabled=False)  # it predates decoder v2
-    assert stored.model == dataclasses.replace(std.model, n_identities=64, motion=motion)
-    assert stored.model.n_identities == 64
-    assert stored.train == dataclasses.replace(std.train, b_steps=3000) and stored.loss == std.loss
-    assert stored.corpus == dataclasses.replace(std.corpus, n_val=0, n_stylised_train=0, train_rests=0,
-                                                val_rests=(), test_rests=())
+    path = ShippedPaths.at().checkpoint
+    stored, std = stored_preset(path), preset("standard")
+    assert stored.model == std.model and stored.train == std.train and stored.loss == std.loss
+    assert stored.corpus == std.corpus and stored.model.motion.enabled
+    assert json.loads(read_metadata(path)["extra"])["corpus_generator"] == GENERATOR_VERSION
 
 
 def _fields_with_random_prototypes(seed: int, kinds: int, temp: float | None = None):
