@@ -112,6 +112,16 @@ def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: Us
     return result, novelty, time.perf_counter() - t0
 
 
+def _frame_model_output_arguments(p, whose: str) -> None:
+    """--up, --units, --checkpoint, --bank and -o, shared by `lrr predict` and `lrr transfer`."""
+    p.add_argument("--up", default="auto", choices=get_args(UpAxis), help="up axis of the file(s) (default: detected)")
+    p.add_argument("--units", default="auto", choices=get_args(Units), help="units of the file(s) (default: detected)")
+    p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
+    p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
+    p.add_argument("-o", "--output", required=True,
+                   help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in {whose} frame and units")
+
+
 def add_arguments(p) -> None:
     p.add_argument("--mesh", required=True, help=f"input mesh ({' '.join(FORMATS)})")
     p.add_argument("--pose", required=True, help="pose name, e.g. elbowBentLf (`lrr corpus poses` lists them)")
@@ -122,11 +132,7 @@ def add_arguments(p) -> None:
                         "nearest (nearest identity delta) or identity:<id>")
     p.add_argument("--magnitude", type=float, default=1.0, help="scales the delta magnitude r, in [%g, %g] (default 1)" % MAGNITUDE_RANGE)
     p.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose)")
-    p.add_argument("--up", default="auto", choices=get_args(UpAxis), help="up axis of the file (default: detected)")
-    p.add_argument("--units", default="auto", choices=get_args(Units), help="units of the file (default: detected)")
-    p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
-    p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
-    p.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in the input's frame and units")
+    _frame_model_output_arguments(p, "the input's")
 
 
 def _check_output(out: Path) -> None:
@@ -171,11 +177,7 @@ def add_transfer_arguments(p) -> None:
     p.add_argument("--mesh", required=True, help="the character B to deform the same way (any topology)")
     p.add_argument("--magnitude", type=float, default=1.0, help="scales the example's delta, in [%g, %g] (default 1)" % MAGNITUDE_RANGE)
     p.add_argument("--kind", default="neutral_to_pose", help="pair kind of the example (default neutral_to_pose)")
-    p.add_argument("--up", default="auto", choices=get_args(UpAxis), help="up axis of the files (default: detected)")
-    p.add_argument("--units", default="auto", choices=get_args(Units), help="units of the files (default: detected)")
-    p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
-    p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
-    p.add_argument("-o", "--output", required=True, help=f"output mesh ({' '.join(EXPORT_FORMATS)}), in B's frame and units")
+    _frame_model_output_arguments(p, "B's")
 
 
 def run_transfer_cli(args) -> None:
