@@ -49,6 +49,7 @@ class LatentBank:
     # neutral state (characters the model never trained on but that it serves; 0 = not calibrated)
     ood_threshold: float = 0.0
     _source_index: dict = field(default_factory=dict, repr=False, compare=False)  # (kind, pose) -> NearestNeighbors
+    _std_rows: np.ndarray | None = field(default=None, repr=False, compare=False)  # standardised mu, on first use
 
     def standardise(self, mu: np.ndarray) -> np.ndarray:
         return (mu - self.mean) / self.scale
@@ -84,10 +85,9 @@ class LatentBank:
     def distance_to_training(self, mu: np.ndarray) -> float:
         """Standardised distance from a latent (Z,) to the nearest training state of the bank."""
         x = self.standardise(np.asarray(mu, np.float64))
-        if "_std_mu" not in self._source_index:
-            self._source_index["_std_mu"] = self.standardise(self.mu.astype(np.float64))
-        rows = self._source_index["_std_mu"]
-        return float(np.sqrt(max(float(((rows - x) ** 2).sum(axis=1).min()), 0.0)))
+        if self._std_rows is None:
+            self._std_rows = self.standardise(self.mu.astype(np.float64))
+        return float(np.sqrt(((self._std_rows - x) ** 2).sum(axis=1).min()))
 
     def identity_delta(self, kind: str, pose: str, identity: str) -> np.ndarray:
         ids, d = self.delta(kind, pose)

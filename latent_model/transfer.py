@@ -256,7 +256,10 @@ class Transfer:
         else:
             raw = self._fields_or_network(mesh, predictor, v, direction, r, k)
         gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
-        novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
+        # once per mesh: the distance to 27k training states would otherwise run at every slider move
+        novelty = None
+        if "mu" in mesh.derived():
+            novelty = mesh.cache("novelty", f"bank:{id(self.bank)}", lambda: self.novelty(mesh))
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
 
     def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, v: torch.Tensor, direction: torch.Tensor,
