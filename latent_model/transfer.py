@@ -193,7 +193,9 @@ class Transfer:
 
     def novelty(self, mesh: PreparedMesh) -> Novelty:
         """How far the mesh's latent lies from every training state (encodes the mesh if not yet done)."""
-        return Novelty(self.bank.distance_to_training(mesh.mu), self.bank.ood_threshold)
+        # the distance once per mesh (27k training states: not at every slider move); the threshold as it is now
+        distance = mesh.cache("novelty", f"bank:{id(self.bank)}", lambda: self.bank.distance_to_training(mesh.mu))
+        return Novelty(distance, self.bank.ood_threshold)
 
     def noise_gate(self, delta: np.ndarray) -> tuple[float, float]:
         """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / the bank's
@@ -257,9 +259,7 @@ class Transfer:
             raw = self._fields_or_network(mesh, predictor, v, direction, r, k)
         gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
-        novelty = None
-        if "mu" in mesh.derived():
-            novelty = mesh.cache("novelty", f"bank:{id(self.bank)}", lambda: self.novelty(mesh))
+        novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
 
     def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, v: torch.Tensor, direction: torch.Tensor,
