@@ -26,7 +26,7 @@ import torch
 from latent_model.bank import LatentBank
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
 from latent_model.nn.delta import normalised_delta
-from latent_model.nn.motion_decoder import surface_smoother
+from latent_model.nn.motion_decoder import RigidMotion, apply_motion, mix_motions, surface_smoother
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
@@ -92,7 +92,8 @@ class PreparedMesh:
 
 @dataclass
 class TransferOutput:
-    vertices: np.ndarray  # (V, 3) the prediction: source + gate * (predicted - source)
+    vertices: np.ndarray  # (V, 3) the prediction: the motion scaled by the noise gate (source + gate * displacement
+    # for the other predictors); a blend weighs each pose by its own gate
     raw: np.ndarray  # (V, 3) the predictor's output, ungated
     gate: float  # noise gate in [0, 1] (0 also when magnitude is 0)
     signal: float  # ||standardised delta|| / noise floor (inf without a measured floor)
@@ -241,31 +242,33 @@ class Transfer:
             raise ValueError("predict needs a pose (or an example pair's delta)")
         else:
             d, label = self.delta(mesh, pose, strategy, kind, oracle_target_mu)
-        if pose_b is not None and blend > 0:
-            d_b, _ = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)
-            d = (1.0 - blend) * d + blend * d_b
-        gate, signal = self.noise_gate(d)
-        if magnitude == 0:
-            gate = 0.0
-        dev = self.device
-        v = torch.from_numpy(mesh.vertices)[None].to(dev)
-        direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(dev))
-        r = r * magnitude
-        k = torch.tensor([PAIR_KINDS.index(kind)], device=dev)
+        d_b = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)[0] if pose_b is not None and blend > 0 else None
         predictor = self.predicts_with(kind)
         if predictor == "motion":
-            raw = self._motion(mesh, direction, r, k)
+            raw, gated, gate, signal = self._motion_prediction(mesh, d, d_b, blend, magnitude, kind)
         else:
-            raw = self._fields_or_network(mesh, predictor, v, direction, r, k)
-        gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+            if d_b is not None:
+                d = (1.0 - blend) * d + blend * d_b
+            gate, signal = self.noise_gate(d)
+            if magnitude == 0:
+                gate = 0.0
+            raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
+            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
 
-    def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, v: torch.Tensor, direction: torch.Tensor,
-                           r: torch.Tensor, k: torch.Tensor) -> np.ndarray:
+    def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""
+        direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(self.device))
+        return direction, r * magnitude, torch.tensor([PAIR_KINDS.index(kind)], device=self.device)
+
+    def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, d: np.ndarray, magnitude: float,
+                           kind: PairKind) -> np.ndarray:
         """(V, 3) the pose fields' prediction, or the network's (which reads the fields too)."""
         dev, fields = self.device, self.model.pose_fields
+        direction, r, k = self._condition(d, magnitude, kind)
+        v = torch.from_numpy(mesh.vertices)[None].to(dev)
         field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         if predictor == "pose_fields":
             raw_t = v + field_disp
@@ -278,8 +281,26 @@ class Transfer:
                        features=features)["vertices"]
         return raw_t[0].cpu().numpy()
 
-    def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> np.ndarray:
-        """(V, 3) the motion decoder's prediction on the mesh (its surface features read once per mesh)."""
+    def _motion_prediction(self, mesh: PreparedMesh, d: np.ndarray, d_b: np.ndarray | None, blend: float,
+                           magnitude: float, kind: PairKind) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """(raw, gated (V, 3), gate, signal) by the motion decoder. A blend reads each pose's own delta and mixes
+        the two motions (`mix_motions`): the mixed delta's direction swings between the poses' and the decoder
+        reads it non-linearly (steps of 7-8x the median on the slider), while mixed motions are continuous.
+        Each pose's noise gate weighs its motion; the reported gate and signal are the mix's."""
+        deltas, weights = ([d], [1.0]) if d_b is None else ([d, d_b], [1.0 - blend, blend])
+        gates = [self.noise_gate(x)[0] for x in deltas]
+        gate = 0.0 if magnitude == 0 else float(sum(a * g for a, g in zip(weights, gates)))
+        signal = self.noise_gate(sum(a * x for a, x in zip(weights, deltas)))[1]
+        motions = [self._motion(mesh, *self._condition(x, magnitude, kind)) for x in deltas]
+        v = torch.from_numpy(mesh.vertices)[None].to(self.device)
+        raw = apply_motion(v, mix_motions(motions, weights))[0].cpu().numpy()
+        if gate == 1.0:
+            return raw, raw, gate, signal
+        gated = apply_motion(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
+        return raw, gated[0].cpu().numpy(), gate, signal
+
+    def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> RigidMotion:
+        """The motion decoder's per-vertex motion of the mesh (its surface features read once per mesh)."""
         dec, dev = self.model.motion_decoder, self.device
 
         def tensors() -> dict[str, torch.Tensor]:
@@ -292,5 +313,4 @@ class Transfer:
         smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
                                                                           self.model.cfg.motion.smooth))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
-        out = dec(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k, smooth=smooth)
-        return out[0].cpu().numpy()
+        return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k, smooth=smooth)

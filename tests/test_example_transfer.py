@@ -35,6 +35,11 @@ def test_blend_is_continuous_and_moves_both_regions(tiny_motion, held_out):
     # at 0.5 both regions move, each a fair part of what its own pose moves it by the model at 1
     for name, truth, full in (("elbow", elbow, steps[0]), ("knee", knee, steps[-1])):
         assert _region_motion(half, truth, v, region[name]) > 0.3 * _region_motion(full, truth, v, region[name]) > 0
+    # the ends are the two poses' own predictions; the slider mixes their motions, not their deltas
+    assert np.allclose(steps[-1], transfer.predict(mesh, "kneeBentLf"), atol=1e-5)
+    mixed_delta = 0.5 * (transfer.bank.mean_delta("neutral_to_pose", "elbowBentLf")
+                         + transfer.bank.mean_delta("neutral_to_pose", "kneeBentLf"))
+    assert not np.allclose(half, transfer.predict(mesh, None, delta=mixed_delta), atol=1e-4)
 
 
 def test_magnitude_is_exact_at_zero_and_continuous(tiny_motion, held_out):

@@ -75,6 +75,28 @@ def test_motion_decoder_is_exact_at_zero_continuous_and_reads_its_conditioning(w
             assert not torch.allclose(run(**{key: other[key]}), base, atol=1e-6), key
 
 
+def test_mixed_motions_weigh_each_motion_and_leave_a_zero_weight_out():
+    """A pose blend mixes the poses' motions: weight 0 leaves a motion out (its rotation and translation
+    exactly), the mix is linear in the weights, and each vertex turns about the pivot of the motion that
+    turns it (where only one turns it, that one's pivot)."""
+    from latent_model.nn.motion_decoder import RigidMotion, apply_motion, mix_motions
+
+    torch.manual_seed(0)
+    v = torch.randn(1, 6, 3)
+    turning = torch.tensor([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])[None, :, None]  # A turns the first three only
+    a = RigidMotion(torch.randn(1, 6, 3) * turning, torch.randn(1, 6, 3), torch.randn(1, 6, 3) * 0.1)
+    b = RigidMotion(torch.randn(1, 6, 3) * (1 - turning), torch.randn(1, 6, 3), torch.randn(1, 6, 3) * 0.1)
+    only_a = mix_motions([a, b], [1.0, 0.0])
+    assert torch.equal(only_a.w, a.w) and torch.equal(only_a.u, a.u)
+    assert torch.allclose(apply_motion(v, only_a)[:, :3], apply_motion(v, a)[:, :3], atol=1e-6)
+    half = mix_motions([a, b], [0.5, 0.5])
+    assert torch.allclose(half.w, 0.5 * (a.w + b.w)) and torch.allclose(half.u, 0.5 * (a.u + b.u))
+    assert torch.allclose(half.pivot[:, :3], a.pivot[:, :3], atol=1e-5)
+    assert torch.allclose(half.pivot[:, 3:], b.pivot[:, 3:], atol=1e-5)
+    none = mix_motions([a, b], [0.0, 0.0])
+    assert torch.equal(apply_motion(v, none), v)
+
+
 def test_a_motion_in_the_limb_frame_turns_with_the_limb():
     """The same decoder and condition on a limb and on the limb turned rigidly (positions, normals,
     medial points and frames rotated together, intrinsic coordinates unchanged) gives the turned

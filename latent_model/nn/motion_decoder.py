@@ -18,6 +18,8 @@ No layer depends on the vertex count or the topology.
 from __future__ import annotations
 
 import math
+import warnings
+from typing import NamedTuple
 
 import torch
 from torch import nn
@@ -125,6 +127,13 @@ class MotionDecoder(nn.Module):
         `c`: a cached `condition(...)` (the explorer's sliders change r only). `smooth`: on a whole mesh, a
         function averaging per-vertex (B, N, k) values over surface neighbourhoods (`surface_smoother`): the
         rotations, pivots and translations are averaged before they act, so a part's vertices share one motion."""
+        return apply_motion(v_src, self.rigid_motion(v_src, coords, frames, normals, medial, mu_src, delta_dir, r, kind,
+                                                     c, smooth))
+
+    def rigid_motion(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
+                     medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
+                     kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None) -> "RigidMotion":
+        """The per-vertex motion in world axes (arguments as `forward`), before it acts."""
         if c is None:
             c = self.condition(mu_src, delta_dir, kind)
         m = self.motion(coords, frames, normals, medial - v_src, c)
@@ -136,8 +145,33 @@ class MotionDecoder(nn.Module):
         pivot = medial + o
         if smooth is not None:
             w, pivot, u = smooth(torch.cat([w, pivot, u], dim=-1)).split(3, dim=-1)
-        turn = axis_angle_to_matrix(w) - torch.eye(3, dtype=w.dtype, device=w.device)  # exactly 0 at r = 0
-        return v_src + torch.einsum("bnij,bnj->bni", turn, v_src - pivot) + u
+        return RigidMotion(w, pivot, u)
+
+
+class RigidMotion(NamedTuple):
+    """Per vertex (B, N, 3) each: rotation vector w, pivot p, translation u (world axes):
+    x' = x + (R(w) - I)(x - p) + u."""
+
+    w: torch.Tensor
+    pivot: torch.Tensor
+    u: torch.Tensor
+
+
+def apply_motion(v_src: torch.Tensor, m: RigidMotion) -> torch.Tensor:
+    """(B, N, 3) source vertices moved by `m` (exactly the source where w = u = 0)."""
+    turn = axis_angle_to_matrix(m.w) - torch.eye(3, dtype=m.w.dtype, device=m.w.device)
+    return v_src + torch.einsum("bnij,bnj->bni", turn, v_src - m.pivot) + m.u
+
+
+def mix_motions(motions: list[RigidMotion], weights: list[float]) -> RigidMotion:
+    """A weighted mix of motions of one mesh (a pose blend): rotations and translations mix linearly, each
+    vertex's pivot is the mix of the pivots weighted by how much each motion turns it. Continuous in the
+    weights; a weight of 0 leaves its motion out exactly, so a blend at 0 or 1 is that pose's motion."""
+    w = sum(a * m.w for a, m in zip(weights, motions))
+    u = sum(a * m.u for a, m in zip(weights, motions))
+    turn = [abs(a) * m.w.norm(dim=-1, keepdim=True) + 1e-9 for a, m in zip(weights, motions)]
+    pivot = sum(t * m.pivot for t, m in zip(turn, motions)) / sum(turn)
+    return RigidMotion(w, pivot, u)
 
 
 def surface_smoother(faces, n_vertices: int, iterations: int):
@@ -152,15 +186,18 @@ def surface_smoother(faces, n_vertices: int, iterations: int):
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
     a = ((a + a.T) > 0).astype(np.float64) + sp.eye(n_vertices)
-    a = (sp.diags(1.0 / np.asarray(a.sum(axis=1)).ravel()) @ a).tocoo()
-    op = torch.sparse_coo_tensor(np.stack([a.row, a.col]), a.data.astype(np.float32), (n_vertices, n_vertices),
-                                 check_invariants=True).coalesce()
+    a = (sp.diags(1.0 / np.asarray(a.sum(axis=1)).ravel()) @ a).tocsr().astype(np.float32)
+    # compressed rows: 30x faster than COO for these 40 products (0.1 s -> 3 ms on 14k vertices)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "CSR support is in beta"
+        op = torch.sparse_csr_tensor(torch.from_numpy(a.indptr).long(), torch.from_numpy(a.indices).long(),
+                                     torch.from_numpy(a.data), (n_vertices, n_vertices))
 
     def smooth(x: torch.Tensor) -> torch.Tensor:
         b, n, k = x.shape
         y = x.permute(1, 0, 2).reshape(n, b * k)
         for _ in range(iterations):
-            y = torch.sparse.mm(op, y)
+            y = op @ y
         return y.reshape(n, b, k).permute(1, 0, 2)
 
     return smooth
