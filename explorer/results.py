@@ -91,7 +91,7 @@ class Prediction:
         what, mm = ("error", self.error_mm) if self.error_mm is not None else ("displacement", self.displacement_mm)
         text = f"{name}{cond}\n{what} mean {mm.mean():.1f} mm\n{what} max {mm.max():.1f} mm"
         if self.gate < 1.0:
-            text += f"\nnoise gate {self.gate:.2f}: delta {self.signal:.1f}x noise floor"
+            text += f"\nnoise gate {self.gate:.2f}: delta {self.signal:.1f}x its noise"
         if self.novelty is not None and self.novelty.out_of_distribution:
             text += f"\nout of distribution: latent {self.novelty.distance:.1f} > {self.novelty.threshold:.1f}"
         return text

@@ -82,6 +82,9 @@ class MotionDecoderConfig:
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
     edge: float = 0.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
     edge_rings: int = 3  # a vertex's partner in that term is within this many edges
+    # weight of the translation's mean length (mm) in the loss: at r = 1 a turn about the vertex's own axis plus a
+    # shift fits as well as a turn about the joint, but only the latter doubles right when the delta doubles
+    translation: float = 0.0
 
     def __post_init__(self) -> None:
         for k in self.kinds:

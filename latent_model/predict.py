@@ -145,8 +145,9 @@ def _print_result(result: "TransferOutput", novelty: dict) -> None:
         if n is not None and (w := n.warning(name)):
             print(w)
     if result.gate < 1.0:
-        print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x the latent noise floor "
-              f"(below 1.5x it carries no usable signal and the prediction keeps the source)")
+        print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x its sampling noise "
+              f"(the latent noise floor, over sqrt(N) for a mean of N deltas; below 1.5x it carries no usable signal "
+              f"and the prediction keeps the source)")
 
 
 def run_cli(args) -> None:

@@ -96,7 +96,7 @@ class TransferOutput:
     # for the other predictors); a blend weighs each pose by its own gate
     raw: np.ndarray  # (V, 3) the predictor's output, ungated
     gate: float  # noise gate in [0, 1] (0 also when magnitude is 0)
-    signal: float  # ||standardised delta|| / noise floor (inf without a measured floor)
+    signal: float  # ||standardised delta|| / its sampling noise (`Transfer.noise_gate`; inf without a measured floor)
     label: str  # where pose A's delta came from: "mean", an identity id, "oracle" or "example"
     predictor: Predictor  # what produced `raw`
     novelty: "Novelty | None" = None  # how far the mesh's latent is from training (when its latent was read)
@@ -198,17 +198,25 @@ class Transfer:
         distance = mesh.cache("novelty", f"bank:{id(self.bank)}", lambda: self.bank.distance_to_training(mesh.mu))
         return Novelty(distance, self.bank.ood_threshold)
 
-    def noise_gate(self, delta: np.ndarray) -> tuple[float, float]:
-        """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / the bank's
-        noise floor: a delta of sampling noise alone has signal ~1 (the paper's R_cond/noise).
-        Below GATE_LO the condition carries no information a predictor could use, so the honest
-        answer is no motion; above GATE_HI it passes untouched; smoothstep in between."""
+    def noise_gate(self, delta: np.ndarray, averaged: float = 1.0) -> tuple[float, float]:
+        """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / its noise: the bank's
+        noise floor (the sampling noise of one delta, so a delta of noise alone has signal ~1, the paper's
+        R_cond/noise) divided by sqrt(averaged) for a mean of that many independent deltas (the mean over 112
+        training characters has a tenth of one delta's noise). Below GATE_LO the condition carries no
+        information a predictor could use, so the honest answer is no motion; above GATE_HI it passes
+        untouched; smoothstep in between."""
         floor = self.bank.noise_floor
         if floor <= 0:  # a bank without a measured noise floor: no gate
             return 1.0, float("inf")
-        signal = float(np.linalg.norm(np.asarray(delta) / self.bank.scale)) / floor
+        signal = float(np.linalg.norm(np.asarray(delta) / self.bank.scale)) / floor * float(np.sqrt(averaged))
         x = min(max((signal - GATE_LO) / (GATE_HI - GATE_LO), 0.0), 1.0)
         return x * x * (3.0 - 2.0 * x), signal
+
+    def averaged(self, pose: str | None, strategy: Strategy, kind: PairKind) -> int:
+        """How many training deltas a strategy's delta averages (the mean strategy: all of the pose's; else 1)."""
+        if pose is None or parse_strategy(strategy) != "mean_pose_delta":
+            return 1
+        return len(self.bank.delta(kind, pose)[0])
 
     def predicts_with(self, kind: PairKind) -> Predictor:
         """"motion", "pose_fields" or "network": what predicts this pair kind."""
@@ -242,14 +250,19 @@ class Transfer:
             raise ValueError("predict needs a pose (or an example pair's delta)")
         else:
             d, label = self.delta(mesh, pose, strategy, kind, oracle_target_mu)
+        n = 1 if delta is not None else self.averaged(pose, strategy, kind)
         d_b = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)[0] if pose_b is not None and blend > 0 else None
+        n_b = self.averaged(pose_b, strategy, kind) if d_b is not None else 1
         predictor = self.predicts_with(kind)
         if predictor == "motion":
-            raw, gated, gate, signal = self._motion_prediction(mesh, d, d_b, blend, magnitude, kind)
+            raw, gated, gate, signal = self._motion_prediction(mesh, (d, n), None if d_b is None else (d_b, n_b),
+                                                               blend, magnitude, kind)
         else:
+            averaged = n
             if d_b is not None:
                 d = (1.0 - blend) * d + blend * d_b
-            gate, signal = self.noise_gate(d)
+                averaged = 1.0 / ((1.0 - blend) ** 2 / n + blend ** 2 / n_b)  # the mix's noise, independent deltas
+            gate, signal = self.noise_gate(d, averaged)
             if magnitude == 0:
                 gate = 0.0
             raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
@@ -281,16 +294,18 @@ class Transfer:
                        features=features)["vertices"]
         return raw_t[0].cpu().numpy()
 
-    def _motion_prediction(self, mesh: PreparedMesh, d: np.ndarray, d_b: np.ndarray | None, blend: float,
-                           magnitude: float, kind: PairKind) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """(raw, gated (V, 3), gate, signal) by the motion decoder. A blend reads each pose's own delta and mixes
-        the two motions (`mix_motions`): the mixed delta's direction swings between the poses' and the decoder
-        reads it non-linearly (steps of 7-8x the median on the slider), while mixed motions are continuous.
-        Each pose's noise gate weighs its motion; the reported gate and signal are the mix's."""
-        deltas, weights = ([d], [1.0]) if d_b is None else ([d, d_b], [1.0 - blend, blend])
-        gates = [self.noise_gate(x)[0] for x in deltas]
-        gate = 0.0 if magnitude == 0 else float(sum(a * g for a, g in zip(weights, gates)))
-        signal = self.noise_gate(sum(a * x for a, x in zip(weights, deltas)))[1]
+    def _motion_prediction(self, mesh: PreparedMesh, a: tuple[np.ndarray, int], b: tuple[np.ndarray, int] | None,
+                           blend: float, magnitude: float, kind: PairKind) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """(raw, gated (V, 3), gate, signal) by the motion decoder from pose A's and (blends) pose B's
+        (delta, deltas averaged). A blend reads each pose's own delta and mixes the two motions (`mix_motions`):
+        the mixed delta's direction swings between the poses' and the decoder reads it non-linearly (steps of
+        7-8x the median on the slider), while mixed motions are continuous. Each pose's noise gate weighs its
+        motion; the reported gate and signal are the weighted mean of the poses'."""
+        poses, weights = ([a], [1.0]) if b is None else ([a, b], [1.0 - blend, blend])
+        deltas = [x for x, _ in poses]
+        gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
+        gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
+        signal = float(sum(w * s for w, s in zip(weights, signals)))
         motions = [self._motion(mesh, *self._condition(x, magnitude, kind)) for x in deltas]
         v = torch.from_numpy(mesh.vertices)[None].to(self.device)
         raw = apply_motion(v, mix_motions(motions, weights))[0].cpu().numpy()

@@ -200,6 +200,16 @@ def test_noise_gate(setup, tiny_corpus):
     assert t.noise_gate(unit * bank.noise_floor * GATE_HI * 1.01)[0] == 1.0
     g, signal = t.noise_gate(unit * bank.noise_floor * (GATE_LO + GATE_HI) / 2)
     assert g == pytest.approx(0.5) and signal == pytest.approx((GATE_LO + GATE_HI) / 2)
+    # a mean of N deltas has 1/sqrt(N) of one delta's noise: the same length passes the gate
+    weak = unit * bank.noise_floor * GATE_LO * 0.5
+    assert t.noise_gate(weak)[0] == 0.0 and t.noise_gate(weak, averaged=16)[0] == 1.0
+    assert t.noise_gate(weak, averaged=16)[1] == pytest.approx(4 * t.noise_gate(weak)[1])
+    s0, mesh0 = held_out_neutral(t, c)
+    n_train = len(bank.delta("neutral_to_pose", "kneeBentLf")[0])
+    assert t.averaged("kneeBentLf", "mean_pose_delta", "neutral_to_pose") == n_train > 1
+    assert t.averaged("kneeBentLf", "nearest_identity_delta", "neutral_to_pose") == 1
+    out = t.predict_detail(mesh0, "kneeBentLf", "mean_pose_delta")
+    assert out.signal == pytest.approx(t.noise_gate(bank.mean_delta("neutral_to_pose", "kneeBentLf"), n_train)[1])
     s, mesh = held_out_neutral(t, c)
     for kind in ("neutral_to_pose", "skinning_to_skinning_plus_blendshape"):
         for magnitude in (0.0, 1.0):

@@ -5,6 +5,7 @@ and pose, for the learned strategies (mean, nearest, oracle) and honest baseline
 - ``offset_nearest``: the vertex offsets (target - source) of the training identity whose
   neutral mesh is nearest (mean per-vertex distance, centroids aligned), added to the source;
 - ``offset_mean``: the training identities' mean vertex offsets added to the source.
+Both from the training characters standing in the evaluated characters' rest configurations.
 The offset copies are possible only because every corpus mesh shares one topology: a user's
 own mesh has no such correspondence, the learned model needs none.
 """
@@ -56,7 +57,10 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
 
     from latent_model.encoding import encode_states
 
-    train = corpus.split_indices("train")
+    # offsets copy only within a rest configuration (another rest's offsets start from other positions): the
+    # training characters of the evaluated characters' rests (half the reads for bind test persons)
+    rests = {corpus.identities[i].rest for i in ids}
+    train = [j for j in corpus.split_indices("train") if corpus.identities[j].rest in rests]
     nearest_of = nearest_training_identity(corpus, train)
     near = {i: nearest_of(i) for i in ids}
     faces = corpus.faces

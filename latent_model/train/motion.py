@@ -18,7 +18,7 @@ from latent_model.atomic import atomic_write
 from latent_model.config import MotionDecoderConfig
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
-from latent_model.nn.motion_decoder import MotionDecoder
+from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
 from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
 from latent_model.types import FINAL, PAIR_KINDS
@@ -146,10 +146,13 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
             rows.append(pair_inputs(cache, table, i, p, delta, idx))
             targets.append(tgt[idx])
         b = _batch_tensors(rows)
-        pred = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
-                       b["delta_dir"], b["r"], b["kind"])
+        motion = decoder.rigid_motion(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
+                                      b["delta_dir"], b["r"], b["kind"])
+        pred = apply_motion(b["v_src"], motion)
         tgt = torch.from_numpy(np.stack(targets)).float()
         loss = (pred - tgt).norm(dim=-1).mean() * 1000  # mm
+        if cfg.translation:
+            loss = loss + cfg.translation * motion.u.norm(dim=-1).mean() * 1000
         if reach is not None:
             # relative position of neighbours: a rigid part stays rigid (per-vertex errors alone let it crumple)
             half, n = cfg.vertices // 2, cfg.vertices
