@@ -167,7 +167,8 @@ class HeatmapPanel(QTabWidget):
     def show_noise(self, nf: NoiseFloor) -> None:
         self.noise_note.setText(f"Noise floor of {nf.target}: poses right of the dashed line carry a pose signal "
                                 f"larger than SDF-resampling noise (the paper's R_cond/noise); the dotted lines "
-                                f"bound the predictions' noise gate.")
+                                f"bound the noise gate of one character's delta (nearest, identity, example). "
+                                f"The mean over N training characters has 1/sqrt(N) of that noise.")
         self.noise.plot(nf)
 
     def show_failure(self, f: Failed) -> None:
