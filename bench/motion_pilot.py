@@ -26,7 +26,7 @@ def main() -> None:
     ap.add_argument("--hidden", type=int, default=128)
     ap.add_argument("--train-persons", type=int, default=0, help="0: all")
     ap.add_argument("--poses", default="body", help="body: every single body pose; broad: the 12 evaluated; "
-                    "shipped: the config's (body singles and their combos)")
+                    "shipped: the config's (body singles and their combos); all: every corpus pose")
     ap.add_argument("--world", action="store_true", help="also world-axis rotation and translation outputs")
     ap.add_argument("--mu-dims", type=int, default=8, help="principal components of mu_src read (0: none)")
     ap.add_argument("--mu-noise", type=float, default=1.0)
@@ -35,6 +35,8 @@ def main() -> None:
     ap.add_argument("--smooth", default="0", help="comma-separated smoothing iterations of the motion at inference, "
                     "each reported in the final table")
     ap.add_argument("--translation", type=float, default=0.0, help="weight of the translation length in the loss")
+    ap.add_argument("--delta-dims", type=int, default=0, help="principal components of the delta direction read (0: all)")
+    ap.add_argument("--delta-noise", type=float, default=0.0)
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
@@ -56,7 +58,7 @@ def main() -> None:
     model.eval()
     broad = tuple(p for p in BROAD if p in c.poses)
     poses = broad if args.poses == "broad" else training_poses(c, "body") if args.poses == "shipped" else tuple(
-        p for p in c.poses if POSES[p].group == "body" and not POSES[p].is_combo)
+        c.poses) if args.poses == "all" else tuple(p for p in c.poses if POSES[p].group == "body" and not POSES[p].is_combo)
     train = c.split_indices("train")
     if args.train_persons:
         keep = list(dict.fromkeys(c.identities[i].person_id for i in train))[:args.train_persons]
@@ -64,6 +66,12 @@ def main() -> None:
     val = c.split_indices("val")
     t = time.perf_counter()
     table = DeltaTable(model, c, train + val, train, poses, torch.device("cpu"))
+    # face and finger poses: their mean deltas from the shipped bank (the same encoder when --checkpoint is the shipped)
+    from latent_model.bank import LatentBank
+
+    bank = LatentBank.load(ShippedPaths.at().bank)
+    local = {p: bank.mean_delta("neutral_to_pose", p) for p in c.poses
+             if not POSES[p].is_combo and POSES[p].group in ("face", "finger")}
     from latent_model.config import data_root
 
     cache = CharacterCache(c, data_root() / "cache" / "surface")
@@ -72,8 +80,10 @@ def main() -> None:
     print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
-                            mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local)
+                            mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local,
+                            delta_dims=args.delta_dims, delta_noise=args.delta_noise)
     decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train])).float())
+    decoder.set_delta_basis(torch.from_numpy(table.directions(train, poses)).float())
 
     def validate(dec) -> dict:
         out: dict[str, list] = {}
@@ -116,6 +126,26 @@ def main() -> None:
         print(f"{'mean':20s}" + "".join(f" {np.mean([e['explained'] for e in allc[g]]):7.3f} / "
                                         f"{np.mean([e['leak_mm'] for e in allc[g]]):5.2f} / "
                                         f"{np.mean([e['strain'] for e in allc[g]]):5.1f}" for g in ("bind", "rest")))
+        # the character's own delta (the oracle; nearest and example pairs are single deltas too)
+        own: dict[str, list] = {}
+        for p in broad:
+            for i in val:
+                v = cache.get(i)[0]
+                pred = predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth)
+                e = mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v)
+                own.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
+        print(f"{'own delta (oracle)':20s}" + "".join(f" {np.mean([e['explained'] for e in own[g]]):7.3f} / "
+                                                     f"{np.mean([e['leak_mm'] for e in own[g]]):5.2f}" for g in ("bind", "rest")))
+        # face and finger poses, mean delta, ungated (the Transfer gates them; these say what would pass)
+        loc: dict[str, list] = {}
+        for p in local:
+            for i in val[::4]:
+                v = cache.get(i)[0]
+                pred = predict(decoder, pair_inputs(cache, table, i, p, local[p]), smooth)
+                loc.setdefault(POSES[p].group, []).append(mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v))
+        print("face / finger poses, mean delta, ungated: " + ", ".join(
+            f"{g} {np.mean([e['explained'] for e in r]):.3f} / {np.mean([e['leak_mm'] for e in r]):.2f} mm"
+            for g, r in loc.items()))
         # magnitudes: twice the 47 degree elbow against the rig's 97 degrees, half of the 97 against the 47
         if "elbowSuperBentLf" in c.poses and "elbowBentLf" in c.poses:
             for pose, m, truth_pose in (("elbowBentLf", 2.0, "elbowSuperBentLf"), ("elbowSuperBentLf", 0.5, "elbowBentLf")):

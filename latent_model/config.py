@@ -85,6 +85,8 @@ class MotionDecoderConfig:
     # weight of the translation's mean length (mm) in the loss: at r = 1 a turn about the vertex's own axis plus a
     # shift fits as well as a turn about the joint, but only the latter doubles right when the delta doubles
     translation: float = 0.0
+    delta_dims: int = 0  # the delta's direction is read through this many whitened principal components (0: in full)
+    delta_noise: float = 0.0  # std of the noise on them in training (in their std units)
 
     def __post_init__(self) -> None:
         for k in self.kinds:
@@ -195,6 +197,8 @@ class Preset:
         model = _from_dict(ModelConfig, d["model"])
         if "motion" not in d["model"]:  # stored before decoder v2 existed: the model has none
             model = dataclasses.replace(model, motion=MotionDecoderConfig(enabled=False))
+        elif "delta_dims" not in d["model"]["motion"]:  # stored before the direction read-out: it read it in full
+            model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, delta_dims=0))
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), model,
                       _from_dict(TrainConfig, d["train"]), _from_dict(LossWeights, d["loss"]))
 

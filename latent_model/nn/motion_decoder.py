@@ -55,7 +55,8 @@ class MotionDecoder(nn.Module):
     """(surface features of V_src, mu_src, delta direction, r, kind) -> V_hat."""
 
     def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
-                 world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0, local_inputs: bool = True) -> None:
+                 world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0, local_inputs: bool = True,
+                 delta_dims: int = 0, delta_noise: float = 0.0) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
@@ -64,7 +65,14 @@ class MotionDecoder(nn.Module):
         self.mu_dims, self.mu_noise = mu_dims, mu_noise
         self.register_buffer("mu_mean", torch.zeros(latent))
         self.register_buffer("mu_basis", torch.zeros(mu_dims, latent))  # (k, Z) rows: components / their std
-        self.cond = mlp([mu_dims + latent + 16, cond, cond], final_act=True)
+        # the delta's direction in full (delta_dims 0), or through its leading principal components over the training
+        # deltas, whitened and noised in training: read in full, a character's own delta (oracle, nearest, an
+        # example pair) carries components no mean delta has, and the decoder keys the training characters on them
+        self.delta_dims, self.delta_noise = delta_dims, delta_noise
+        if delta_dims:
+            self.register_buffer("delta_mean", torch.zeros(latent))
+            self.register_buffer("delta_basis", torch.zeros(delta_dims, latent))
+        self.cond = mlp([mu_dims + (delta_dims or latent) + 16, cond, cond], final_act=True)
         # local_inputs: also the normal and the medial offset (they differ between neighbours: a part's
         # vertices then get different motions); without, the motion is a smooth function of where on the body
         self.local_inputs = local_inputs
@@ -92,6 +100,28 @@ class MotionDecoder(nn.Module):
         self.mu_basis.zero_()
         self.mu_basis[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
 
+    def set_delta_basis(self, directions: torch.Tensor) -> None:
+        """Fit the direction read-out (delta_dims > 0) to the training deltas' unit directions (N, Z)."""
+        if not self.delta_dims:
+            return
+        mean = directions.mean(0)
+        _, s, vt = torch.linalg.svd(directions - mean, full_matrices=False)
+        k = min(self.delta_dims, len(s))
+        std = s[:k] / max(len(directions) - 1, 1) ** 0.5
+        self.delta_mean.copy_(mean)
+        self.delta_basis.zero_()
+        self.delta_basis[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
+
+    def delta_code(self, delta_dir: torch.Tensor) -> torch.Tensor:
+        """(B, Z) unit directions -> (B, delta_dims) whitened principal coordinates (noised in training), or the
+        direction itself at unit RMS when delta_dims is 0."""
+        if not self.delta_dims:
+            return delta_dir * self.dir_gain
+        z = ((delta_dir - self.delta_mean) @ self.delta_basis.T).clamp(-5.0, 5.0)
+        if self.training and self.delta_noise > 0:
+            z = z + torch.randn_like(z) * self.delta_noise
+        return z
+
     def mu_code(self, mu_src: torch.Tensor) -> torch.Tensor:
         """(B, Z) -> (B, k) whitened principal coordinates, clamped to +-3 (noised in training)."""
         z = ((mu_src - self.mu_mean) @ self.mu_basis.T).clamp(-3.0, 3.0)
@@ -101,7 +131,7 @@ class MotionDecoder(nn.Module):
 
     def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
         """(B, Z), (B, Z), (B,) -> (B, C)."""
-        return self.cond(torch.cat([self.mu_code(mu_src), delta_dir * self.dir_gain, self.kind_emb(kind)], dim=-1))
+        return self.cond(torch.cat([self.mu_code(mu_src), self.delta_code(delta_dir), self.kind_emb(kind)], dim=-1))
 
     def motion(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor, medial_offset: torch.Tensor,
                c: torch.Tensor) -> torch.Tensor:

@@ -68,6 +68,11 @@ class DeltaTable:
         self.mean = {p: np.mean([self.delta[(i, p)] for i in train_ids], axis=0) for p in poses}
         self.scale = float(np.mean([np.linalg.norm(self.delta[(i, p)]) for i in train_ids for p in poses]))
 
+    def directions(self, ids: list[int], poses: tuple[str, ...]) -> np.ndarray:
+        """(len(ids) * len(poses), Z) unit directions of the characters' own deltas."""
+        d = np.stack([self.delta[(i, p)] for i in ids for p in poses])
+        return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+
 
 def ring_neighbours(faces: np.ndarray, n_vertices: int, rings: int):
     """CSR adjacency (V, V) of the vertices within `rings` edges of each vertex (itself excluded)."""
@@ -199,6 +204,7 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
     table = DeltaTable(model, corpus, train_ids, train_ids, poses, device, mu_rows)
     dec.delta_scale.fill_(table.scale)
     dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train_ids])).float())
+    dec.set_delta_basis(torch.from_numpy(table.directions(train_ids, poses)).float())
     cache = CharacterCache(corpus, Path(run_dir) / "surface")
     dec.train()
     history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, m, preset.train.seed + 5000,
