@@ -99,6 +99,22 @@ def load_phase_a(path: Path, model: torch.nn.Module, expect: Preset) -> None:
     _load_into(model, tensors, path, ignore=PHASE_B_PREFIXES)
 
 
+def load_phase_b_network(path: Path, model: torch.nn.Module, expect: Preset) -> None:
+    """Load everything but decoder v2 (`motion_decoder.*`) of a Phase B checkpoint into `model`: decoder v2
+    re-trains on it alone (`lrr train motion`) whatever motion config the checkpoint carried."""
+    import dataclasses
+
+    meta = read_metadata(path)
+    stored = Preset.from_dict(json.loads(meta["preset"]))
+    same = lambda m: dataclasses.replace(m, motion=dataclasses.replace(m.motion, enabled=True))  # noqa: E731
+    strip = lambda m: {k: v for k, v in dataclasses.asdict(same(m)).items() if k != "motion"}  # noqa: E731
+    if strip(stored.model) != strip(expect.model) or stored.train.b_steps != expect.train.b_steps:
+        raise CheckpointError(f"Phase B checkpoint {path} was trained with another model config than preset "
+                              f"{expect.name!r}; re-train Phase B (lrr train phase-b --preset {expect.name})")
+    tensors = {k: v for k, v in _tensors(path, meta).items() if not k.startswith("motion_decoder.")}
+    _load_into(model, tensors, path, ignore=("motion_decoder.",))
+
+
 def load_checkpoint(path: Path, model: torch.nn.Module | None = None, expect: Preset | None = None):
     """Load weights (into `model`, or a new LatentReRig built from the stored preset).
 

@@ -274,7 +274,7 @@ def cmd_train(args) -> None:
         raise UserError(f"corpus {corpus_dir} was built with another config than preset {args.preset!r}; "
                         f"build it with `lrr corpus build --preset {args.preset}` or pass --corpus")
     run_dir = Path(args.run_dir) if args.run_dir else data_root() / "runs" / args.preset
-    phases = {"phase-a": "a", "phase-b": "b", "all": "all"}[args.phase]
+    phases = {"phase-a": "a", "phase-b": "b", "all": "all", "motion": "motion"}[args.phase]
     device = select_device()
     rank, world = dist_info()
     if rank == 0:
@@ -367,7 +367,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_sheet)
 
     t = sub.add_parser("train", help="train Phase A (SDF-VAE), Phase B (vertex decoder) or both; resumes")
-    t.add_argument("phase", choices=("phase-a", "phase-b", "all"))
+    t.add_argument("phase", choices=("phase-a", "phase-b", "all", "motion"),
+                   help="motion: decoder v2 alone, on the run's finished Phase B (phase_b.safetensors)")
     t.add_argument("--preset", required=True, choices=PRESETS)
     t.add_argument("--corpus", help="corpus directory (default: the preset's)")
     t.add_argument("--run-dir", help="run directory for checkpoints, logs, loss curves (default: $LRR_DATA/runs/PRESET)")

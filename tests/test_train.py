@@ -160,3 +160,27 @@ def test_phase_b_with_the_motion_decoder_starts_from_a_phase_a_checkpoint(run_a,
     train_phase_b(model, pm, tiny_corpus, tmp_path, torch.device("cpu"), steps=2, progress=False)
     assert float(model.motion_decoder.delta_scale) > 0 and model.motion_decoder.mu_basis.abs().sum() > 0
     assert all(torch.equal(v, model.encoder.state_dict()[k]) for k, v in enc.items())
+
+
+def test_decoder_v2_retrains_alone_on_a_finished_phase_b(run_a, tiny_corpus, tmp_path):
+    """`lrr train motion`: decoder v2 re-trains on a run's Phase B checkpoint and comes out as Phase B's own
+    motion part would (same seeds), the network untouched; another motion config trains another decoder."""
+    import dataclasses
+    import shutil
+
+    from latent_model.train.phases import train
+
+    run, p, _ = run_a
+    motion = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=8, batch=2, vertices=64)
+    pm = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=motion))
+    shutil.copy(run / "phase_a.safetensors", tmp_path / "phase_a.safetensors")
+    full, _, _ = load_checkpoint(train(pm, tiny_corpus, tmp_path, "b", torch.device("cpu"), progress=False))
+    network = {k: v.clone() for k, v in full.state_dict().items() if not k.startswith("motion_decoder.")}
+    again, _, _ = load_checkpoint(train(pm, tiny_corpus, tmp_path, "motion", torch.device("cpu"), progress=False))
+    for k, v in again.state_dict().items():
+        ref = network.get(k, full.state_dict()[k])
+        assert torch.allclose(v, ref, atol=1e-5), k
+    other = dataclasses.replace(pm, model=dataclasses.replace(pm.model, motion=dataclasses.replace(motion, translation=5.0)))
+    moved, _, _ = load_checkpoint(train(other, tiny_corpus, tmp_path, "motion", torch.device("cpu"), progress=False))
+    assert not torch.allclose(moved.motion_decoder.out.weight, full.motion_decoder.out.weight)
+    assert all(torch.equal(v, moved.state_dict()[k]) for k, v in network.items())

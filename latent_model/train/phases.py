@@ -13,7 +13,7 @@ from latent_model.corpus.store import Corpus
 from latent_model.nn import losses
 from latent_model.nn.encoder import reparameterise
 from latent_model.nn.model import LatentReRig
-from latent_model.checkpoint import load_phase_a, save_checkpoint
+from latent_model.checkpoint import load_phase_a, load_phase_b_network, save_checkpoint
 from latent_model.encoding import encode_rows
 from latent_model.nn.delta import normalised_delta
 from latent_model.train.data import PhaseABatch, PhaseASampler, PhaseBBatch, PhaseBSampler
@@ -139,7 +139,8 @@ def train_phase_b(model: LatentReRig, preset: Preset, corpus: Corpus, run_dir: P
 
 def train(preset: Preset, corpus: Corpus, run_dir: Path, phases: str = "all", device: torch.device | None = None,
           fresh: bool = False, progress: bool = True) -> Path:
-    """Run phase A, B or both; writes run_dir/model.safetensors (all parts) at the end."""
+    """Run phase A, B, both ("all"), or decoder v2 alone on a finished Phase B ("motion"); writes
+    run_dir/model.safetensors (all parts) at the end."""
     from latent_model.runtime import select_device
 
     device = device or select_device()
@@ -153,6 +154,14 @@ def train(preset: Preset, corpus: Corpus, run_dir: Path, phases: str = "all", de
         load_phase_a(ckpt_a, model, expect=preset)  # Phase B always starts from the finished Phase A
         model.to(device)
         train_phase_b(model, preset, corpus, run_dir, device, fresh=fresh, progress=progress)
+    if phases == "motion":  # decoder v2 alone, on the finished Phase B network (its checkpoint is written before it)
+        if model.motion_decoder is None:
+            raise ValueError(f"preset {preset.name!r} has no motion decoder (MotionDecoderConfig.enabled is False)")
+        load_phase_b_network(run_dir / "phase_b.safetensors", model, expect=preset)
+        freeze_encoder(model)
+        from latent_model.train.motion import train_motion_phase
+
+        train_motion_phase(model.to(device), preset, corpus, run_dir, device, progress=progress)
     final = run_dir / "model.safetensors"
     if dist_info()[0] == 0:
         save_checkpoint(final, model, preset, phases, 0, extra={"corpus_digest": corpus.manifest["config_digest"],
