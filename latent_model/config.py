@@ -86,7 +86,7 @@ class MotionDecoderConfig:
     # shift fits as well as a turn about the joint, but only the latter doubles right when the delta doubles
     translation: float = 0.0
     delta_dims: int = 0  # the delta's direction is read through this many whitened principal components (0: in full)
-    delta_noise: float = 0.0  # std of the noise on them in training (in their std units)
+    delta_noise: float = 0.0  # std of the noise on them (or on the unit-RMS direction) in training
 
     def __post_init__(self) -> None:
         for k in self.kinds:

@@ -289,7 +289,8 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
             "training identities — possible only because the corpus shares one topology (a user's mesh has no such "
             "correspondence; the model needs none). The paper reports no mesh-error numbers.", "",
             "mean / nearest / oracle are what the Transfer API returns: the decoder's displacement scaled by the noise "
-            "gate (0 when the conditioning delta is under 1.5x the latent noise floor, 1 above 3x). `*_raw` is the "
+            "gate (0 when the conditioning delta is under 1.5x its sampling noise, 1 above 3x; the noise is the latent "
+            "noise floor for one character's delta, the floor over sqrt(N) for the mean of N). `*_raw` is the "
             "vertex decoder's own output, ungated (the same decoder call).", ""]
     strategies = ("mean", "nearest", "oracle", "mean_raw", "nearest_raw", "no_motion", "offset_nearest", "offset_mean")
     for kind in PAIR_KINDS:

@@ -113,11 +113,12 @@ class MotionDecoder(nn.Module):
         self.delta_basis[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
 
     def delta_code(self, delta_dir: torch.Tensor) -> torch.Tensor:
-        """(B, Z) unit directions -> (B, delta_dims) whitened principal coordinates (noised in training), or the
-        direction itself at unit RMS when delta_dims is 0."""
-        if not self.delta_dims:
-            return delta_dir * self.dir_gain
-        z = ((delta_dir - self.delta_mean) @ self.delta_basis.T).clamp(-5.0, 5.0)
+        """(B, Z) unit directions -> (B, delta_dims) whitened principal coordinates, or the direction itself at
+        unit RMS when delta_dims is 0; noised in training (delta_noise)."""
+        if self.delta_dims:
+            z = ((delta_dir - self.delta_mean) @ self.delta_basis.T).clamp(-5.0, 5.0)
+        else:
+            z = delta_dir * self.dir_gain
         if self.training and self.delta_noise > 0:
             z = z + torch.randn_like(z) * self.delta_noise
         return z
