@@ -44,6 +44,18 @@ def axis_angle_to_matrix(w: torch.Tensor) -> torch.Tensor:
     return eye + a[..., None] * K + b[..., None] * (K @ K)
 
 
+def fit_whitened_basis(x: torch.Tensor, mean_out: torch.Tensor, basis_out: torch.Tensor) -> None:
+    """Fill mean_out (Z,) with the rows' mean and basis_out (k, Z) with their k leading principal components,
+    each divided by its std, so that (x - mean) @ basis.T has unit variance per column (x: (N, Z))."""
+    mean = x.mean(0)
+    _, s, vt = torch.linalg.svd(x - mean, full_matrices=False)
+    k = min(len(basis_out), len(s))
+    std = s[:k] / max(len(x) - 1, 1) ** 0.5
+    mean_out.copy_(mean)
+    basis_out.zero_()
+    basis_out[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
+
+
 def coord_features(coords: torch.Tensor) -> torch.Tensor:
     """(..., 6) geodesic coordinates -> (..., 6 + 12 N_COORD_FREQ) Fourier features."""
     freqs = (2.0 ** torch.arange(N_COORD_FREQ, dtype=coords.dtype, device=coords.device)) * math.pi
@@ -92,25 +104,12 @@ class MotionDecoder(nn.Module):
 
     def set_mu_basis(self, mu: torch.Tensor) -> None:
         """Fit the mu_src read-out to the training characters' neutral latents (N, Z)."""
-        mean = mu.mean(0)
-        _, s, vt = torch.linalg.svd(mu - mean, full_matrices=False)
-        k = min(self.mu_dims, len(s))
-        std = s[:k] / max(len(mu) - 1, 1) ** 0.5
-        self.mu_mean.copy_(mean)
-        self.mu_basis.zero_()
-        self.mu_basis[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
+        fit_whitened_basis(mu, self.mu_mean, self.mu_basis)
 
     def set_delta_basis(self, directions: torch.Tensor) -> None:
         """Fit the direction read-out (delta_dims > 0) to the training deltas' unit directions (N, Z)."""
-        if not self.delta_dims:
-            return
-        mean = directions.mean(0)
-        _, s, vt = torch.linalg.svd(directions - mean, full_matrices=False)
-        k = min(self.delta_dims, len(s))
-        std = s[:k] / max(len(directions) - 1, 1) ** 0.5
-        self.delta_mean.copy_(mean)
-        self.delta_basis.zero_()
-        self.delta_basis[:k] = vt[:k] / std.clamp(min=1e-8)[:, None]
+        if self.delta_dims:
+            fit_whitened_basis(directions, self.delta_mean, self.delta_basis)
 
     def delta_code(self, delta_dir: torch.Tensor) -> torch.Tensor:
         """(B, Z) unit directions -> (B, delta_dims) whitened principal coordinates, or the direction itself at
