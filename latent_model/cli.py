@@ -260,14 +260,17 @@ def cmd_sheet(args) -> None:
 
 
 def cmd_train(args) -> None:
-    from latent_model.config import data_root, preset
+    from latent_model.config import data_root, override, preset
     from latent_model.corpus.store import Corpus
     from latent_model.runtime import select_device
     from latent_model.train.loop import dist_info, init_distributed
     from latent_model.train.phases import train
 
     init_distributed()
-    p = preset(args.preset)
+    try:
+        p = override(preset(args.preset), args.set or [])
+    except ValueError as e:
+        raise UserError(str(e)) from e
     corpus_dir = Path(args.corpus) if args.corpus else default_corpus_dir(args.preset)
     corpus = Corpus(corpus_dir)
     if corpus.manifest["config_digest"] != p.corpus.digest():
@@ -373,6 +376,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--corpus", help="corpus directory (default: the preset's)")
     t.add_argument("--run-dir", help="run directory for checkpoints, logs, loss curves (default: $LRR_DATA/runs/PRESET)")
     t.add_argument("--fresh", action="store_true", help="ignore resume state and start the phase(s) over")
+    t.add_argument("--set", action="append", metavar="SECTION.FIELD=VALUE",
+                   help="override one preset field for this run (repeatable; stored in the checkpoint), "
+                        "e.g. --set train.a_mirrors=true --set loss.mirror=1")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.set_defaults(func=cmd_train)
 

@@ -133,6 +133,7 @@ class LossWeights:
     contrast: float = 0.1  # supervised InfoNCE on normalised deltas (separates poses)
     contrast_temperature: float = 0.1  # its temperature
     align: float = 3.0  # alignment: mean 1 - cos of same-pose deltas of different identities
+    mirror: float = 0.0  # laterality: mean max(0, cos) of one character's deltas of a pose and its mirror
     pos: float = 1.0  # vertex RMSE over the batch
     pos_rel: float = 0.02  # per-pair RMSE relative to the pair's own motion (+2 mm)
     knn: float = 0.5  # KNN edge lengths
@@ -151,6 +152,7 @@ class TrainConfig:
     a_steps: int = 6000  # Phase A steps
     a_identities: int = 4  # identities per Phase A batch (all see the same poses: contrastive positives)
     a_poses: int = 4  # single poses per identity per batch (+ a combo with components + variants)
+    a_mirrors: bool = False  # a sided pose comes with its mirror (hard negatives: the encoder barely tells L from R)
     a_enc_points: int = 2048  # SDF samples fed to the encoder per state (subset of K)
     a_query_points: int = 256  # SDF decoder queries per state
     a_lr: float = 1e-3  # Phase A learning rate
@@ -201,6 +203,44 @@ class Preset:
             model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, delta_dims=0))
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), model,
                       _from_dict(TrainConfig, d["train"]), _from_dict(LossWeights, d["loss"]))
+
+
+def override(p: Preset, assignments: list[str]) -> Preset:
+    """`p` with "SECTION.FIELD=VALUE" assignments applied (`train.a_mirrors=true`, `loss.mirror=1`,
+    `model.motion.steps=3000`); the corpus is fixed by the built corpus, so it has no overrides.
+    VALUE is JSON (true, 3, 0.5, [1, 2]) or a bare string; it must have the field's type."""
+    import json
+
+    for a in assignments:
+        key, sep, raw = a.partition("=")
+        path = key.strip().split(".")
+        if not sep or len(path) < 2 or path[0] not in ("model", "train", "loss"):
+            raise ValueError(f"--set {a!r}: expected SECTION.FIELD=VALUE with SECTION model, train or loss "
+                             f"(e.g. train.a_mirrors=true)")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        chain = [p]
+        for name in path[:-1]:
+            chain.append(getattr(chain[-1], name))
+        owner, leaf = chain[-1], path[-1]
+        fields = {f.name: f for f in dataclasses.fields(owner)}
+        if leaf not in fields or dataclasses.is_dataclass(getattr(owner, leaf)):
+            valid = ", ".join(n for n in fields if not dataclasses.is_dataclass(getattr(owner, n)))
+            raise ValueError(f"--set {a!r}: {'.'.join(path[:-1])} has no field {leaf!r}; valid: {valid}")
+        old = getattr(owner, leaf)
+        if isinstance(old, tuple) and isinstance(value, list):
+            value = tuple(value)
+        elif isinstance(old, float) and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if type(value) is not type(old):
+            raise ValueError(f"--set {a!r}: {key} is {type(old).__name__} (now {old!r}), got {value!r}")
+        new = dataclasses.replace(owner, **{leaf: value})
+        for parent, name in zip(reversed(chain[:-1]), reversed(path[:-1])):
+            new = dataclasses.replace(parent, **{name: new})
+        p = new
+    return p
 
 
 def preset(name: str) -> Preset:

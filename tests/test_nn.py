@@ -358,3 +358,56 @@ def test_alignment_is_zero_for_parallel_same_pose_deltas_and_ignores_other_poses
     x = torch.tensor([[1.0, 0, 0], [0.6, 0.8, 0]], requires_grad=True)
     losses.alignment(x, torch.tensor([0, 0])).backward()
     assert x.grad[1, 0] < 0 and x.grad[1, 1] > 0  # descent raises its x share, lowers its y share
+
+
+def test_mirror_cosine_penalises_shared_directions_only():
+    """A pose's and its mirror's deltas of one character cost their cosine when it is positive:
+    parallel 1, orthogonal or opposite 0; the gradient turns them apart."""
+    from latent_model.nn import losses
+
+    a = torch.tensor([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]])
+    b = torch.tensor([[2.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0]])
+    assert losses.mirror_cosine(a[:1], b[:1]).item() == pytest.approx(1.0, abs=1e-6)
+    assert losses.mirror_cosine(a[1:], b[1:]).item() == pytest.approx(0.0, abs=1e-6)
+    assert losses.mirror_cosine(a[:0], b[:0]).item() == 0.0
+    x = torch.tensor([[1.0, 0.2, 0]], requires_grad=True)
+    losses.mirror_cosine(x, torch.tensor([[1.0, 0, 0]])).backward()
+    assert x.grad[0, 1] < 0  # descent raises the component the mirror lacks
+
+
+def test_phase_a_batches_bring_mirrors_as_hard_negatives_when_asked(tiny_corpus):
+    """With a_mirrors every sided pose of a batch comes with its mirror, paired per identity, and
+    the mirror term enters Phase A's loss; without, a side is often drawn alone."""
+    import dataclasses
+
+    from latent_model.config import preset
+    from latent_model.corpus.poses import mirror_pose
+    from latent_model.nn.model import LatentReRig
+    from latent_model.train.data import PhaseASampler
+    from latent_model.train.phases import PhaseANet
+
+    assert mirror_pose("elbowBentLf") == "elbowBentRt" and mirror_pose("elbowBentRt") == "elbowBentLf"
+    assert mirror_pose("jawOpen") is None and mirror_pose("elbowBentLf+kneeBentLf") is None
+    p = preset("tiny")
+    p = dataclasses.replace(p, train=dataclasses.replace(p.train, a_mirrors=True, a_poses=5),
+                            loss=dataclasses.replace(p.loss, mirror=1.0))
+    sampler = PhaseASampler(tiny_corpus, p, seed=0)
+    batches = [sampler.sample() for _ in range(6)]
+    assert any(len(b.mirror_rows) for b in batches)
+    names = tiny_corpus.poses
+    for b in batches:
+        for i, j in b.mirror_rows.tolist():
+            assert b.neutral_of[i] == b.neutral_of[j]  # the same identity
+            assert mirror_pose(names[int(b.pose_label[i])]) == names[int(b.pose_label[j])]
+            assert i in b.contrast_rows and j in b.contrast_rows
+    b = next(b for b in batches if len(b.mirror_rows))
+    _, terms = PhaseANet(LatentReRig(p.model), p)(b)
+    assert 0.0 <= float(terms["mirror"]) <= 1.0
+    elbows = {names.index("elbowBentLf"), names.index("elbowBentRt")}
+
+    def sides(batch) -> set[int]:
+        return elbows & set(batch.pose_label[batch.contrast_rows].tolist())
+
+    assert all(len(sides(b)) != 1 for b in batches)
+    plain = PhaseASampler(tiny_corpus, preset("tiny"), seed=0)
+    assert any(len(sides(plain.sample())) == 1 for _ in range(20))

@@ -28,7 +28,8 @@ def model_source(model, bank, samples: SampleCache, device: torch.device | None 
 
 class SdfGrid:
     """A fixed grid over the corpus' bodies; `values(points, sdf)` interpolates one state's
-    samples onto it (inverse-distance weighting of the k nearest samples)."""
+    samples onto it (inverse-distance weighting of the k nearest samples); `of_state` memoises that
+    per (state, resample), so the PCA baselines of every size share one interpolation per state."""
 
     def __init__(self, corpus: Corpus, spacing: float = 0.05, k: int = 8) -> None:
         lo = np.full(3, np.inf)
@@ -40,6 +41,14 @@ class SdfGrid:
         axes = [np.arange(a, b + 1e-9, spacing) for a, b in zip(lo, hi)]
         self.points = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
         self.k = k
+        self._memo: dict[tuple[int, int], np.ndarray] = {}
+
+    def of_state(self, samples: SampleCache, state: int, resample: int) -> np.ndarray:
+        """(G,) grid values of a state's stored (resample 0) or re-drawn samples."""
+        key = (state, resample)
+        if key not in self._memo:
+            self._memo[key] = self.values(*samples.get(state, resample)).astype(np.float32)
+        return self._memo[key]
 
     def values(self, points: np.ndarray, sdf: np.ndarray) -> np.ndarray:
         d, idx = cKDTree(points).query(self.points, k=self.k)
@@ -57,7 +66,7 @@ def pca_baseline_source(corpus: Corpus, samples: SampleCache, dims: int, fit_ids
     fit_states += [corpus.state(i, p, FINAL) for i in train[:fit_ids] for p in single_poses(tuple(corpus.poses))]
 
     def raw(states: list[int], resample: int) -> np.ndarray:
-        return np.stack([grid.values(*samples.get(s, resample)) for s in states]).astype(np.float32)
+        return np.stack([grid.of_state(samples, s, resample) for s in states])
 
     X = raw(fit_states, 0)
     dims = min(dims, len(X) - 1)

@@ -210,6 +210,14 @@ def get_pose(name: str) -> PoseConfig:
     return look_up(POSES, name, "pose")
 
 
+def mirror_pose(name: str) -> str | None:
+    """The other side's single pose of a sided single pose ("elbowBentLf" -> "elbowBentRt"), else None."""
+    for a, b in (("Lf", "Rt"), ("Rt", "Lf")):
+        if name.endswith(a) and "+" not in name and name[:-2] + b in POSES:
+            return name[:-2] + b
+    return None
+
+
 def pose_line(p: PoseConfig) -> str:
     """One human-readable line: name, single/combo, skeletal and blendshape parts."""
     kind = "combo" if p.is_combo else "single"

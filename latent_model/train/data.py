@@ -9,7 +9,7 @@ import torch
 from latent_model.config import Preset
 from latent_model.corpus.pairs import Pair, enumerate_pairs
 from latent_model.types import FINAL, PAIR_KINDS
-from latent_model.corpus.poses import get_pose
+from latent_model.corpus.poses import get_pose, mirror_pose
 from latent_model.corpus.store import Corpus
 from latent_model.nn.vertex_decoder import knn_graph
 
@@ -37,6 +37,7 @@ class PhaseABatch:
     contrast_rows: torch.Tensor  # rows whose delta enters the contrastive/pose-cls losses
     variant_rows: torch.Tensor  # (M, 3): rows of (skinning_plus_blendshape, skinning, blendshape)
     combo_rows: list[tuple[int, list[int]]]  # (combo row, component rows)
+    mirror_rows: torch.Tensor  # (M, 2): rows of one identity's sided pose and its mirror (both in contrast_rows)
 
 
 class PhaseASampler:
@@ -59,14 +60,27 @@ class PhaseASampler:
         q = self.rng.choice(K, size=min(self.t.a_query_points, K), replace=False)
         return pts[e], vals[e], pts[q], vals[q]
 
+    def _poses(self) -> list[str]:
+        """a_poses distinct single poses; with a_mirrors each sided one brings its mirror (a_poses + 1 at most)."""
+        n = min(self.t.a_poses, len(self.singles))
+        if not self.t.a_mirrors:
+            return [str(p) for p in self.rng.choice(self.singles, size=n, replace=False)]
+        out: list[str] = []
+        for p in self.rng.permutation(self.singles):
+            if len(out) >= n:
+                break
+            m = mirror_pose(str(p))
+            out += [x for x in (str(p), m) if x is not None and x in self.singles and x not in out]
+        return out
+
     def sample(self) -> PhaseABatch:
         rng, c = self.rng, self.c
         ids = rng.choice(self.train_ids, size=min(self.t.a_identities, len(self.train_ids)), replace=False)
-        poses = list(rng.choice(self.singles, size=min(self.t.a_poses, len(self.singles)), replace=False))
+        poses = self._poses()
         combo = str(rng.choice(self.combos)) if self.combos else None
         var_pose = str(rng.choice(self.skeletal)) if self.skeletal else None
         rows: list[tuple[int, int, int, str]] = []  # (state, identity, pose label, role)
-        variant_rows, combo_rows, contrast = [], [], []
+        variant_rows, combo_rows, contrast, mirrors = [], [], [], []
         for i in ids:
             i = int(i)
             rows.append((c.state(i, None, "neutral"), i, -1, "neutral"))
@@ -81,6 +95,10 @@ class PhaseASampler:
 
             for p in poses:
                 contrast.append(add(str(p), FINAL, "single"))
+            for p in poses:
+                m = mirror_pose(p)
+                if m in poses and p < m:
+                    mirrors.append((add(p, FINAL, "single"), add(m, FINAL, "single")))
             if combo:
                 comp = [add(x, FINAL, "component") for x in get_pose(combo).components]
                 combo_rows.append((add(combo, FINAL, "combo"), comp))
@@ -100,6 +118,7 @@ class PhaseASampler:
             torch.tensor(sorted(set(contrast + [r for r, _ in combo_rows]))),
             torch.tensor(variant_rows, dtype=torch.long).reshape(-1, 3),
             combo_rows,
+            torch.tensor(mirrors, dtype=torch.long).reshape(-1, 2),
         )
 
 

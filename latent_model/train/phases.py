@@ -46,6 +46,9 @@ class PhaseANet(nn.Module):
         t["contrast"] = losses.contrastive(delta[rows], b.pose_label[rows], w.contrast_temperature)
         if w.align:
             t["align"] = losses.alignment(delta[rows], b.pose_label[rows])
+        if w.mirror and len(b.mirror_rows):
+            m = b.mirror_rows
+            t["mirror"] = losses.mirror_cosine(delta[m[:, 0]], delta[m[:, 1]])
         if len(b.variant_rows):
             v = b.variant_rows
             t["variant"] = losses.composition(delta[v[:, 0]], delta[v[:, 1]] + delta[v[:, 2]])
