@@ -37,6 +37,10 @@ def main() -> None:
     ap.add_argument("--translation", type=float, default=0.0, help="weight of the translation length in the loss")
     ap.add_argument("--delta-dims", type=int, default=0, help="principal components of the delta direction read (0: all)")
     ap.add_argument("--delta-noise", type=float, default=0.0)
+    ap.add_argument("--rigid", default="0", help="comma-separated 0/1: without / with rigid hands and feet at "
+                    "inference (part_rigidifier), each reported")
+    ap.add_argument("--bank", help="the face and finger poses' mean deltas from this bank (default: the shipped; "
+                    "give the checkpoint's own)")
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
@@ -45,7 +49,7 @@ def main() -> None:
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.poses import POSES
     from latent_model.corpus.store import Corpus
-    from latent_model.nn.motion_decoder import MotionDecoder, surface_smoother
+    from latent_model.nn.motion_decoder import MotionDecoder, part_rigidifier, surface_smoother
     from latent_model.shipped import ShippedPaths
     from latent_model.config import MotionDecoderConfig
     from latent_model.train.motion import (CharacterCache, DeltaTable, pair_inputs, predict, train_motion_decoder,
@@ -69,7 +73,7 @@ def main() -> None:
     # face and finger poses: their mean deltas from the shipped bank (the same encoder when --checkpoint is the shipped)
     from latent_model.bank import LatentBank
 
-    bank = LatentBank.load(ShippedPaths.at().bank)
+    bank = LatentBank.load(args.bank or ShippedPaths.at().bank)
     local = {p: bank.mean_delta("neutral_to_pose", p) for p in c.poses
              if not POSES[p].is_combo and POSES[p].group in ("face", "finger")}
     from latent_model.config import data_root
@@ -106,23 +110,35 @@ def main() -> None:
                              validate_every=max(args.steps // 3, 1))
         print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
     n_v = len(cache.get(val[0])[0])
-    for it in (int(x) for x in args.smooth.split(",")):
+    rigidifiers: dict[int, object] = {}
+
+    def rigid_of(i: int):
+        if i not in rigidifiers:
+            rigidifiers[i] = part_rigidifier(cache.get(i)[2].coords)
+        return rigidifiers[i] if use_rigid else None
+
+    for it, use_rigid in ((int(x), bool(int(y))) for x in args.smooth.split(",") for y in args.rigid.split(",")):
         smooth = surface_smoother(c.faces, n_v, it)
-        print(f"smoothing {it}: {'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}")
+        print(f"smoothing {it}, rigid hands and feet {use_rigid}: {'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}"
+              f" {'own delta, bind':>16s}")
         allc: dict[str, list] = {}
         for p in broad:
             cells = {}
             for i in val:
                 v = cache.get(i)[0]
-                pred = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p]), smooth)
+                pred = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p]), smooth, rigid_of(i))
                 truth = c.vertices(c.state(i, p, FINAL))
                 e = {**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)}
                 g = "bind" if c.identities[i].rest == "bind" else "rest"
                 cells.setdefault(g, []).append(e)
                 allc.setdefault(g, []).append(e)
+            mine = [mesh_errors(predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth, rigid_of(i)),
+                                c.vertices(c.state(i, p, FINAL)), cache.get(i)[0])["explained"]
+                    for i in val if c.identities[i].rest == "bind"]
             print(f"{p:20s}" + "".join(f" {np.mean([e['explained'] for e in cells[g]]):7.2f} / "
                                        f"{np.mean([e['leak_mm'] for e in cells[g]]):5.2f} / "
-                                       f"{np.mean([e['strain'] for e in cells[g]]):5.1f}" for g in ("bind", "rest")))
+                                       f"{np.mean([e['strain'] for e in cells[g]]):5.1f}" for g in ("bind", "rest"))
+                  + f" {np.mean(mine):10.2f}")
         print(f"{'mean':20s}" + "".join(f" {np.mean([e['explained'] for e in allc[g]]):7.3f} / "
                                         f"{np.mean([e['leak_mm'] for e in allc[g]]):5.2f} / "
                                         f"{np.mean([e['strain'] for e in allc[g]]):5.1f}" for g in ("bind", "rest")))
@@ -131,7 +147,7 @@ def main() -> None:
         for p in broad:
             for i in val:
                 v = cache.get(i)[0]
-                pred = predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth)
+                pred = predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth, rigid_of(i))
                 e = mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v)
                 own.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
         print(f"{'own delta (oracle)':20s}" + "".join(f" {np.mean([e['explained'] for e in own[g]]):7.3f} / "
@@ -141,7 +157,7 @@ def main() -> None:
         for p in local:
             for i in val[::4]:
                 v = cache.get(i)[0]
-                pred = predict(decoder, pair_inputs(cache, table, i, p, local[p]), smooth)
+                pred = predict(decoder, pair_inputs(cache, table, i, p, local[p]), smooth, rigid_of(i))
                 loc.setdefault(POSES[p].group, []).append(mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v))
         print("face / finger poses, mean delta, ungated: " + ", ".join(
             f"{g} {np.mean([e['explained'] for e in r]):.3f} / {np.mean([e['leak_mm'] for e in r]):.2f} mm"
@@ -155,7 +171,7 @@ def main() -> None:
                     x = pair_inputs(cache, table, i, pose, table.mean[pose])
                     x["r"] = np.float32(x["r"] * m)
                     truth = c.vertices(c.state(i, truth_pose, FINAL))
-                    pred = predict(decoder, x, smooth)
+                    pred = predict(decoder, x, smooth, rigid_of(i))
                     rows.append({**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)})
                 print(f"{pose} x{m:g} vs {truth_pose}: explained {np.mean([e['explained'] for e in rows]):.3f}, "
                       f"leak {np.mean([e['leak_mm'] for e in rows]):.2f} mm, strain {np.mean([e['strain'] for e in rows]):.1f} %")

@@ -26,7 +26,7 @@ import torch
 from latent_model.bank import LatentBank
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
 from latent_model.nn.delta import normalised_delta
-from latent_model.nn.motion_decoder import RigidMotion, apply_motion, mix_motions, surface_smoother
+from latent_model.nn.motion_decoder import RigidMotion, apply_motion, mix_motions, part_rigidifier, surface_smoother
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
@@ -308,11 +308,18 @@ class Transfer:
         signal = float(sum(w * s for w, s in zip(weights, signals)))
         motions = [self._motion(mesh, *self._condition(x, magnitude, kind)) for x in deltas]
         v = torch.from_numpy(mesh.vertices)[None].to(self.device)
-        raw = apply_motion(v, mix_motions(motions, weights))[0].cpu().numpy()
+        rigid = self._rigid_parts(mesh)
+        raw = rigid(v, apply_motion(v, mix_motions(motions, weights)))[0].cpu().numpy()
         if gate == 1.0:
             return raw, raw, gate, signal
-        gated = apply_motion(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
+        gated = rigid(v, apply_motion(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)])))
         return raw, gated[0].cpu().numpy(), gate, signal
+
+    def _rigid_parts(self, mesh: PreparedMesh):
+        """(v_src, v_pred) -> v_pred with hands and feet moved as rigid parts (`part_rigidifier`), or unchanged."""
+        if not self.model.cfg.motion.rigid_parts:
+            return lambda v, y: y
+        return mesh.cache("motion_rigid", self.device, lambda: part_rigidifier(mesh.surface.coords))
 
     def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> RigidMotion:
         """The motion decoder's per-vertex motion of the mesh (its surface features read once per mesh)."""

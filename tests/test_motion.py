@@ -160,3 +160,29 @@ def test_a_trained_motion_decoder_predicts_through_transfer_and_its_checkpoint(t
     t2 = Transfer(again, bank, c.config.sdf.k)
     mesh2 = t2.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=mesh.mu)
     assert np.allclose(t2.predict(mesh2, "elbowBentLf"), out.vertices, atol=1e-6)
+
+
+def test_rigid_parts_move_hands_and_feet_as_one_and_leave_the_rest(stances):
+    """On a real body: a bent, crumpled motion of the foot and hand becomes a rigid one in their cores
+    (edge lengths kept there), the wrist and the body above stay as predicted, the transition is smooth
+    (no vertex jumps by more than the crumpling), and a still prediction comes back exactly."""
+    from latent_model.nn.motion_decoder import RIGID_PARTS, part_rigidifier
+
+    v, sf = stances["bind"]
+    x = torch.from_numpy(v)[None].float()
+    g = torch.Generator().manual_seed(0)
+    crumple = 0.02 * torch.randn(1, len(v), 3, generator=g)
+    y = x + torch.tensor([0.05, 0.0, 0.0]) + crumple  # a shift of everything, plus 2 cm of per-vertex noise
+    out = part_rigidifier(sf.coords)(x, y)
+    for name, (col, core, edge) in RIGID_PARTS.items():
+        inner = np.flatnonzero(sf.coords[:, col] < core)
+        assert len(inner) > 50, name
+        exact = "donot_use_mm_for_euclid_dist"
+        d_src = torch.cdist(x[0, inner[:200]], x[0, inner[:200]], compute_mode=exact)
+        d_out = torch.cdist(out[0, inner[:200]], out[0, inner[:200]], compute_mode=exact)
+        assert (d_out - d_src).abs().max() < 1e-4, name  # rigid
+        assert (out[0, inner] - x[0, inner] - torch.tensor([0.05, 0.0, 0.0])).norm(dim=-1).mean() < 0.01, name
+    far = np.flatnonzero((sf.coords[:, 2:6] > 0.14).all(axis=1))
+    assert torch.equal(out[0, far], y[0, far])
+    assert (out - y).norm(dim=-1).max() < 0.1
+    assert torch.equal(part_rigidifier(sf.coords)(x, x.clone()), x)

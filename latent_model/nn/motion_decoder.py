@@ -204,6 +204,53 @@ def mix_motions(motions: list[RigidMotion], weights: list[float]) -> RigidMotion
     return RigidMotion(w, pivot, u)
 
 
+# Distal parts that move as one in every body pose: (column of surface.coords, the geodesic distance from the
+# part's extremity, over the height, up to which it is fully rigid, and where the blend back ends). The hand
+# stops short of the wrist (a wrist flex turns it); the foot short of the heel and ankle (toes to mid-foot:
+# fingertip and toe tip are the extremities, the wrist lies at ~0.11 H, the heel at 0.12-0.16 H).
+RIGID_PARTS = {"hand_left": (2, 0.07, 0.10), "hand_right": (3, 0.07, 0.10),
+               "foot_left": (4, 0.09, 0.13), "foot_right": (5, 0.09, 0.13)}
+
+
+def part_rigidifier(coords, parts: dict[str, tuple[int, float, float]] | None = None):
+    """A function (v_src, v_pred) (B, N, 3) -> (B, N, 3) that replaces the predicted motion of each distal part
+    (hands and feet, located by the geodesic coordinates `coords` (N, 6) of `latent_model/surface.py`, any
+    topology) by its best rigid fit (weighted Kabsch), blended back to the prediction towards the part's border.
+    A per-vertex motion averaged over neighbours still bends and crumples a hand or a foot (toes folded at a full
+    knee bend); a part's bones do not bend. Exactly the prediction where it equals the source (magnitude 0)."""
+    import numpy as np
+
+    c = np.asarray(coords, dtype=np.float64)
+    table = RIGID_PARTS if parts is None else parts
+    weights = []
+    for col, core, edge in table.values():
+        t = np.clip((edge - c[:, col]) / max(edge - core, 1e-9), 0.0, 1.0)
+        s = t * t * (3.0 - 2.0 * t)  # smoothstep: 1 in the core, 0 past the edge
+        idx = np.flatnonzero(s > 0)
+        if len(idx) >= 3:
+            weights.append((torch.from_numpy(idx), torch.from_numpy(s[idx]).float()))
+
+    def rigidify(v_src: torch.Tensor, v_pred: torch.Tensor) -> torch.Tensor:
+        out = v_pred.clone()
+        for idx, s in weights:
+            x, y = v_src[:, idx], v_pred[:, idx]
+            if not bool((y != x).any()):
+                continue
+            sx = s.to(x)[None, :, None]
+            w = sx / sx.sum()
+            cx, cy = (w * x).sum(1, keepdim=True), (w * y).sum(1, keepdim=True)
+            h = torch.einsum("bni,bnj->bij", w * (x - cx), y - cy)
+            u, _, vt = torch.linalg.svd(h)
+            d = torch.sign(torch.det(vt.transpose(1, 2) @ u.transpose(1, 2)))
+            fix = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
+            rot = vt.transpose(1, 2) @ fix @ u.transpose(1, 2)  # (B, 3, 3): y - cy ~ rot (x - cx)
+            rigid = torch.einsum("bij,bnj->bni", rot, x - cx) + cy
+            out[:, idx] = y + sx * (rigid - y)
+        return out
+
+    return rigidify
+
+
 def surface_smoother(faces, n_vertices: int, iterations: int):
     """A function (B, N, k) -> (B, N, k): `iterations` rounds of averaging each vertex with its edge
     neighbours (N = n_vertices, any topology); None when iterations is 0."""
