@@ -186,3 +186,28 @@ def test_rigid_parts_move_hands_and_feet_as_one_and_leave_the_rest(stances):
     assert torch.equal(out[0, far], y[0, far])
     assert (out - y).norm(dim=-1).max() < 0.1
     assert torch.equal(part_rigidifier(sf.coords)(x, x.clone()), x)
+
+
+def test_transfer_moves_hands_and_feet_rigidly_when_the_config_says_so(tiny_motion, tiny_corpus):
+    """rigid_parts changes the prediction in the hands and feet only (through the one Transfer path), and
+    magnitude 0 is still the source exactly."""
+    import dataclasses
+
+    from latent_model.nn.motion_decoder import RIGID_PARTS
+
+    t, _ = tiny_motion
+    c = tiny_corpus
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    cfg = t.model.cfg
+    try:
+        plain = t.predict(t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces), "kneeBentLf")
+        t.model.cfg = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, rigid_parts=True))
+        mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
+        rigid = t.predict(mesh, "kneeBentLf")
+        assert np.array_equal(t.predict(mesh, "kneeBentLf", magnitude=0.0), mesh.vertices)
+    finally:
+        t.model.cfg = cfg
+    moved = np.linalg.norm(rigid - plain, axis=1) > 1e-6
+    edge = max(e for _, _, e in RIGID_PARTS.values())
+    in_parts = (mesh.surface.coords[:, 2:6] < edge).any(axis=1)
+    assert moved.any() and not (moved & ~in_parts).any()
