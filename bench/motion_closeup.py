@@ -29,6 +29,7 @@ def main() -> None:
     ap.add_argument("--view", default="front")
     ap.add_argument("--rigid-parts", choices=("config", "on", "off"), default="config",
                     help="hands and feet as rigid parts: as the checkpoint's config says, or forced on / off")
+    ap.add_argument("--repivot", type=float, help="absorb_translation's damping at inference (default: the config's)")
     ap.add_argument("-o", "--output", default="closeup.png")
     args = ap.parse_args()
     import matplotlib
@@ -46,11 +47,14 @@ def main() -> None:
 
     torch.set_num_threads(2)
     t = Transfer.from_files(args.checkpoint, args.bank)
-    if args.rigid_parts != "config":
-        import dataclasses
+    import dataclasses
 
-        cfg = t.model.cfg
-        t.model.cfg = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, rigid_parts=args.rigid_parts == "on"))
+    motion = t.model.cfg.motion
+    if args.rigid_parts != "config":
+        motion = dataclasses.replace(motion, rigid_parts=args.rigid_parts == "on")
+    if args.repivot is not None:
+        motion = dataclasses.replace(motion, repivot=args.repivot)
+    t.model.cfg = dataclasses.replace(t.model.cfg, motion=motion)
     c = Corpus(args.corpus or default_corpus_dir("standard"))
     chars = Characters(t, c)
     i = c.split_indices(args.split, rest=args.rest)[args.character]
@@ -60,7 +64,7 @@ def main() -> None:
     pred, truth = out.vertices, chars.truth(i, args.truth_pose or args.pose)
     e = mesh_errors(pred, truth, v)
     strain = edge_strain(pred, truth, v, c.faces)
-    rigid = ", rigid hands and feet" if t.model.cfg.motion.rigid_parts else ""
+    rigid = (", rigid hands and feet" if motion.rigid_parts else "") + (f", repivot {motion.repivot:g}" if motion.repivot else "")
     name = f"{c.identities[i].id} ({args.rest}), {args.pose} x{args.magnitude:g} [{out.label}, {out.predictor}{rigid}]"
     print(f"{name} vs {args.truth_pose or args.pose}: explained {e['explained']:.3f}, leak {e['leak_mm']:.2f} mm, "
           f"moving-region error {e['err_moving_mm']:.1f} mm, edge strain {strain:.1f} % "

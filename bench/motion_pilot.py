@@ -39,6 +39,8 @@ def main() -> None:
     ap.add_argument("--delta-noise", type=float, default=0.0)
     ap.add_argument("--rigid", default="0", help="comma-separated 0/1: without / with rigid hands and feet at "
                     "inference (part_rigidifier), each reported")
+    ap.add_argument("--repivot", default="0", help="comma-separated dampings of absorb_translation at inference "
+                    "(0: off), each reported")
     ap.add_argument("--bank", help="the face and finger poses' mean deltas from this bank (default: the shipped; "
                     "give the checkpoint's own)")
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
@@ -117,22 +119,23 @@ def main() -> None:
             rigidifiers[i] = part_rigidifier(cache.get(i)[2].coords)
         return rigidifiers[i] if use_rigid else None
 
-    for it, use_rigid in ((int(x), bool(int(y))) for x in args.smooth.split(",") for y in args.rigid.split(",")):
+    for it, use_rigid, rp in ((int(x), bool(int(y)), float(z)) for x in args.smooth.split(",")
+                              for y in args.rigid.split(",") for z in args.repivot.split(",")):
         smooth = surface_smoother(c.faces, n_v, it)
-        print(f"smoothing {it}, rigid hands and feet {use_rigid}: {'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}"
+        print(f"smoothing {it}, rigid hands and feet {use_rigid}, repivot {rp:g}: {'pose':20s} {'bind: explained / leak mm / strain %':>36s} {'val rests':>24s}"
               f" {'own delta, bind':>16s}")
         allc: dict[str, list] = {}
         for p in broad:
             cells = {}
             for i in val:
                 v = cache.get(i)[0]
-                pred = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p]), smooth, rigid_of(i))
+                pred = predict(decoder, pair_inputs(cache, table, i, p, table.mean[p]), smooth, rigid_of(i), rp)
                 truth = c.vertices(c.state(i, p, FINAL))
                 e = {**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)}
                 g = "bind" if c.identities[i].rest == "bind" else "rest"
                 cells.setdefault(g, []).append(e)
                 allc.setdefault(g, []).append(e)
-            mine = [mesh_errors(predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth, rigid_of(i)),
+            mine = [mesh_errors(predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth, rigid_of(i), rp),
                                 c.vertices(c.state(i, p, FINAL)), cache.get(i)[0])["explained"]
                     for i in val if c.identities[i].rest == "bind"]
             print(f"{p:20s}" + "".join(f" {np.mean([e['explained'] for e in cells[g]]):7.2f} / "
@@ -147,7 +150,7 @@ def main() -> None:
         for p in broad:
             for i in val:
                 v = cache.get(i)[0]
-                pred = predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth, rigid_of(i))
+                pred = predict(decoder, pair_inputs(cache, table, i, p, table.delta[(i, p)]), smooth, rigid_of(i), rp)
                 e = mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v)
                 own.setdefault("bind" if c.identities[i].rest == "bind" else "rest", []).append(e)
         print(f"{'own delta (oracle)':20s}" + "".join(f" {np.mean([e['explained'] for e in own[g]]):7.3f} / "
@@ -157,7 +160,7 @@ def main() -> None:
         for p in local:
             for i in val[::4]:
                 v = cache.get(i)[0]
-                pred = predict(decoder, pair_inputs(cache, table, i, p, local[p]), smooth, rigid_of(i))
+                pred = predict(decoder, pair_inputs(cache, table, i, p, local[p]), smooth, rigid_of(i), rp)
                 loc.setdefault(POSES[p].group, []).append(mesh_errors(pred, c.vertices(c.state(i, p, FINAL)), v))
         print("face / finger poses, mean delta, ungated: " + ", ".join(
             f"{g} {np.mean([e['explained'] for e in r]):.3f} / {np.mean([e['leak_mm'] for e in r]):.2f} mm"
@@ -171,7 +174,7 @@ def main() -> None:
                     x = pair_inputs(cache, table, i, pose, table.mean[pose])
                     x["r"] = np.float32(x["r"] * m)
                     truth = c.vertices(c.state(i, truth_pose, FINAL))
-                    pred = predict(decoder, x, smooth, rigid_of(i))
+                    pred = predict(decoder, x, smooth, rigid_of(i), rp)
                     rows.append({**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)})
                 print(f"{pose} x{m:g} vs {truth_pose}: explained {np.mean([e['explained'] for e in rows]):.3f}, "
                       f"leak {np.mean([e['leak_mm'] for e in rows]):.2f} mm, strain {np.mean([e['strain'] for e in rows]):.1f} %")

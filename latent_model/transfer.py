@@ -335,4 +335,5 @@ class Transfer:
         smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
                                                                           self.model.cfg.motion.smooth))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
-        return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k, smooth=smooth)
+        return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k, smooth=smooth,
+                                repivot=self.model.cfg.motion.repivot)

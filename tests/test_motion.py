@@ -211,3 +211,29 @@ def test_transfer_moves_hands_and_feet_rigidly_when_the_config_says_so(tiny_moti
     edge = max(e for _, _, e in RIGID_PARTS.values())
     in_parts = (mesh.surface.coords[:, 2:6] < edge).any(axis=1)
     assert moved.any() and not (moved & ~in_parts).any()
+
+
+def test_absorbing_the_translation_keeps_r1_and_turns_twice_about_the_joint():
+    """A forearm turning 47 degrees about its elbow, expressed as a turn about the wrong pivot plus a shift,
+    predicts the same at r = 1 after absorption, and at r = 2 turns 94 degrees about the elbow (without
+    absorption it does not); vertices that do not turn keep their pure translation."""
+    from latent_model.nn.motion_decoder import RigidMotion, absorb_translation, apply_motion, axis_angle_to_matrix
+
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(1, 40, 3, generator=g) * 0.1 + torch.tensor([0.3, 0.0, 0.0])
+    elbow = torch.zeros(1, 40, 3)
+    w = torch.tensor([0.0, 0.0, 47.0 / 180 * np.pi]).expand(1, 40, 3)
+    wrong = elbow + torch.randn(1, 40, 3, generator=g) * 0.05  # per-vertex pivots off the joint
+    rot = axis_angle_to_matrix(w) - torch.eye(3)
+    u = torch.einsum("bnij,bnj->bni", rot, wrong - elbow)  # makes x + rot (x - wrong) + u = the true turn
+    truth1 = apply_motion(x, RigidMotion(w, elbow, torch.zeros_like(u)))
+    assert torch.allclose(apply_motion(x, RigidMotion(w, wrong, u)), truth1, atol=1e-6)
+    pivot, u2 = absorb_translation(w, wrong, u, 0.05)
+    assert torch.allclose(apply_motion(x, RigidMotion(w, pivot, u2)), truth1, atol=1e-5)
+    truth2 = apply_motion(x, RigidMotion(2 * w, elbow, torch.zeros_like(u)))
+    assert (apply_motion(x, RigidMotion(2 * w, pivot, 2 * u2)) - truth2).norm(dim=-1).max() < 2e-3
+    assert (apply_motion(x, RigidMotion(2 * w, wrong, 2 * u)) - truth2).norm(dim=-1).max() > 0.02
+    still = torch.zeros(1, 1, 3)
+    shift = torch.tensor([[[0.01, 0.0, 0.0]]])
+    p3, u3 = absorb_translation(still, still, shift, 0.05)
+    assert torch.allclose(u3, shift) and torch.allclose(p3, still)

@@ -151,31 +151,36 @@ class MotionDecoder(nn.Module):
 
     def forward(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                 medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
-                kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None) -> torch.Tensor:
+                kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None, repivot: float = 0.0) -> torch.Tensor:
         """v_src, normals, medial (B, N, 3); coords (B, N, 6); frames (B, N, 3, 3); mu_src, delta_dir (B, Z);
         r (B,) the delta's length in mean training lengths; kind (B,). -> V_hat (B, N, 3).
         `c`: a cached `condition(...)` (the explorer's sliders change r only). `smooth`: on a whole mesh, a
         function averaging per-vertex (B, N, k) values over surface neighbourhoods (`surface_smoother`): the
-        rotations, pivots and translations are averaged before they act, so a part's vertices share one motion."""
+        rotations, pivots and translations are averaged before they act, so a part's vertices share one motion.
+        `repivot` > 0: each vertex's translation is absorbed into its pivot (`absorb_translation`, that damping)."""
         return apply_motion(v_src, self.rigid_motion(v_src, coords, frames, normals, medial, mu_src, delta_dir, r, kind,
-                                                     c, smooth))
+                                                     c, smooth, repivot))
 
     def rigid_motion(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                      medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
-                     kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None) -> "RigidMotion":
-        """The per-vertex motion in world axes (arguments as `forward`), before it acts."""
+                     kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None,
+                     repivot: float = 0.0) -> "RigidMotion":
+        """The per-vertex motion in world axes (arguments as `forward`), before it acts. Rotation and translation
+        are formed at r = 1, smoothed (linear, so it commutes with r), optionally re-pivoted, then scaled by r."""
         if c is None:
             c = self.condition(mu_src, delta_dir, kind)
         m = self.motion(coords, frames, normals, medial - v_src, c)
         to_world = lambda x: torch.einsum("bnij,bnj->bni", frames, x)  # noqa: E731  F x
         r = r.reshape(-1, 1, 1)
-        w, o, u = to_world(m[..., 0:3]) * r, to_world(m[..., 3:6]) * 0.1, to_world(m[..., 6:9]) * 0.1 * r
+        w, o, u = to_world(m[..., 0:3]), to_world(m[..., 3:6]) * 0.1, to_world(m[..., 6:9]) * 0.1
         if self.world:
-            w, u = w + m[..., 9:12] * r, u + m[..., 12:15] * 0.1 * r
+            w, u = w + m[..., 9:12], u + m[..., 12:15] * 0.1
         pivot = medial + o
         if smooth is not None:
             w, pivot, u = smooth(torch.cat([w, pivot, u], dim=-1)).split(3, dim=-1)
-        return RigidMotion(w, pivot, u)
+        if repivot > 0:
+            pivot, u = absorb_translation(w, pivot, u, repivot)
+        return RigidMotion(w * r, pivot, u * r)
 
 
 class RigidMotion(NamedTuple):
@@ -185,6 +190,21 @@ class RigidMotion(NamedTuple):
     w: torch.Tensor
     pivot: torch.Tensor
     u: torch.Tensor
+
+
+def absorb_translation(w: torch.Tensor, pivot: torch.Tensor, u: torch.Tensor, damping: float
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The same motion at r = 1 with as little translation as the rotation allows: the pivot moves by
+    d = -(A^T A + damping^2 I)^-1 A^T u (A = R(w) - I) and the translation becomes u + A d, so that
+    x + A (x - pivot) + u is unchanged; all (B, N, 3). A turn about a vertex's own axis plus a shift fits a
+    joint's turn at r = 1 as well as the turn about the joint, but scaling r (magnitude 2, a partial gate) turns
+    and shifts it the wrong way; about the absorbed pivot it turns about the joint. `damping` (radians) keeps
+    vertices that barely turn from taking a far pivot; the part along the axis cannot be absorbed."""
+    a = axis_angle_to_matrix(w) - torch.eye(3, dtype=w.dtype, device=w.device)
+    at = a.transpose(-1, -2)
+    lhs = at @ a + (damping ** 2) * torch.eye(3, dtype=w.dtype, device=w.device)
+    d = -torch.linalg.solve(lhs, (at @ u[..., None]))[..., 0]
+    return pivot + d, u + (a @ d[..., None])[..., 0]
 
 
 def apply_motion(v_src: torch.Tensor, m: RigidMotion) -> torch.Tensor:
