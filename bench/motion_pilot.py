@@ -172,9 +172,8 @@ def main() -> None:
                 for i in val:
                     v = cache.get(i)[0]
                     x = pair_inputs(cache, table, i, pose, table.mean[pose])
-                    x["r"] = np.float32(x["r"] * m)
                     truth = c.vertices(c.state(i, truth_pose, FINAL))
-                    pred = predict(decoder, x, smooth, rigid_of(i), rp)
+                    pred = predict(decoder, x, smooth, rigid_of(i), rp, magnitude=m)
                     rows.append({**mesh_errors(pred, truth, v), "strain": edge_strain(pred, truth, v, c.faces)})
                 print(f"{pose} x{m:g} vs {truth_pose}: explained {np.mean([e['explained'] for e in rows]):.3f}, "
                       f"leak {np.mean([e['leak_mm'] for e in rows]):.2f} mm, strain {np.mean([e['strain'] for e in rows]):.1f} %")

@@ -74,8 +74,8 @@ class MotionDecoderConfig:
     mu_noise: float = 1.0  # std of the noise on them in training (in their std units)
     local_inputs: bool = False  # also read each vertex's normal and medial offset (they made neighbours disagree)
     smooth: int = 40  # at inference, rounds of averaging the per-vertex motion over surface neighbours
-    rigid_parts: bool = False  # at inference, hands and feet move as rigid parts (nn/motion_decoder.RIGID_PARTS)
-    repivot: float = 0.0  # at inference, > 0: translations absorbed into pivots (absorb_translation, its damping)
+    rigid_parts: bool = True  # at inference, hands and feet move as rigid parts (nn/motion_decoder.RIGID_PARTS)
+    repivot: float = 0.15  # at inference, > 0: translations absorbed into pivots (absorb_translation, its damping)
     poses: str = "body"  # the poses it trains on: "body" (skeletal single poses and their combos) or "all"
     steps: int = 6000  # training steps
     batch: int = 16  # pairs per step

@@ -306,7 +306,7 @@ class Transfer:
         gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
-        motions = [self._motion(mesh, *self._condition(x, magnitude, kind)) for x in deltas]
+        motions = [self._motion(mesh, *self._condition(x, 1.0, kind), magnitude) for x in deltas]
         v = torch.from_numpy(mesh.vertices)[None].to(self.device)
         rigid = self._rigid_parts(mesh)
         raw = rigid(v, apply_motion(v, mix_motions(motions, weights)))[0].cpu().numpy()
@@ -321,8 +321,10 @@ class Transfer:
             return lambda v, y: y
         return mesh.cache("motion_rigid", self.device, lambda: part_rigidifier(mesh.surface.coords))
 
-    def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> RigidMotion:
-        """The motion decoder's per-vertex motion of the mesh (its surface features read once per mesh)."""
+    def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,
+                magnitude: float = 1.0) -> RigidMotion:
+        """The motion decoder's per-vertex motion of the mesh for a delta of length r scaled by `magnitude` (its
+        surface features read once per mesh)."""
         dec, dev = self.model.motion_decoder, self.device
 
         def tensors() -> dict[str, torch.Tensor]:
@@ -335,5 +337,5 @@ class Transfer:
         smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
                                                                           self.model.cfg.motion.smooth))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
-        return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r / dec.delta_scale, kind=k, smooth=smooth,
-                                repivot=self.model.cfg.motion.repivot)
+        return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r * magnitude / dec.delta_scale, kind=k,
+                                smooth=smooth, repivot=self.model.cfg.motion.repivot, r_ref=r / dec.delta_scale)

@@ -188,7 +188,7 @@ def test_rigid_parts_move_hands_and_feet_as_one_and_leave_the_rest(stances):
     assert torch.equal(part_rigidifier(sf.coords)(x, x.clone()), x)
 
 
-def test_transfer_moves_hands_and_feet_rigidly_when_the_config_says_so(tiny_motion, tiny_corpus):
+def test_transfer_moves_hands_and_feet_rigidly_unless_the_config_says_not(tiny_motion, tiny_corpus):
     """rigid_parts changes the prediction in the hands and feet only (through the one Transfer path), and
     magnitude 0 is still the source exactly."""
     import dataclasses
@@ -199,9 +199,11 @@ def test_transfer_moves_hands_and_feet_rigidly_when_the_config_says_so(tiny_moti
     c = tiny_corpus
     s = c.state(c.split_indices("test")[0], None, "neutral")
     cfg = t.model.cfg
+    assert cfg.motion.rigid_parts  # the default
     try:
+        t.model.cfg = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, rigid_parts=False))
         plain = t.predict(t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces), "kneeBentLf")
-        t.model.cfg = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, rigid_parts=True))
+        t.model.cfg = cfg
         mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
         rigid = t.predict(mesh, "kneeBentLf")
         assert np.array_equal(t.predict(mesh, "kneeBentLf", magnitude=0.0), mesh.vertices)

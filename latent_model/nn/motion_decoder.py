@@ -151,22 +151,25 @@ class MotionDecoder(nn.Module):
 
     def forward(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                 medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
-                kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None, repivot: float = 0.0) -> torch.Tensor:
+                kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None, repivot: float = 0.0,
+                r_ref: torch.Tensor | None = None) -> torch.Tensor:
         """v_src, normals, medial (B, N, 3); coords (B, N, 6); frames (B, N, 3, 3); mu_src, delta_dir (B, Z);
         r (B,) the delta's length in mean training lengths; kind (B,). -> V_hat (B, N, 3).
         `c`: a cached `condition(...)` (the explorer's sliders change r only). `smooth`: on a whole mesh, a
         function averaging per-vertex (B, N, k) values over surface neighbourhoods (`surface_smoother`): the
         rotations, pivots and translations are averaged before they act, so a part's vertices share one motion.
-        `repivot` > 0: each vertex's translation is absorbed into its pivot (`absorb_translation`, that damping)."""
+        `repivot` > 0: each vertex's translation is absorbed into its pivot (`absorb_translation`, that damping) at
+        the delta's own length `r_ref` (B,) (default r: r is r_ref times the magnitude), then scaled to r."""
         return apply_motion(v_src, self.rigid_motion(v_src, coords, frames, normals, medial, mu_src, delta_dir, r, kind,
-                                                     c, smooth, repivot))
+                                                     c, smooth, repivot, r_ref))
 
     def rigid_motion(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                      medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
                      kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None,
-                     repivot: float = 0.0) -> "RigidMotion":
+                     repivot: float = 0.0, r_ref: torch.Tensor | None = None) -> "RigidMotion":
         """The per-vertex motion in world axes (arguments as `forward`), before it acts. Rotation and translation
-        are formed at r = 1, smoothed (linear, so it commutes with r), optionally re-pivoted, then scaled by r."""
+        are formed per unit r, smoothed (linear, so it commutes with r), optionally re-pivoted at r_ref (the
+        motion there is unchanged), then scaled by r."""
         if c is None:
             c = self.condition(mu_src, delta_dir, kind)
         m = self.motion(coords, frames, normals, medial - v_src, c)
@@ -179,7 +182,9 @@ class MotionDecoder(nn.Module):
         if smooth is not None:
             w, pivot, u = smooth(torch.cat([w, pivot, u], dim=-1)).split(3, dim=-1)
         if repivot > 0:
-            pivot, u = absorb_translation(w, pivot, u, repivot)
+            ref = (r if r_ref is None else r_ref.reshape(-1, 1, 1)).clamp(min=1e-6)
+            pivot, u_ref = absorb_translation(w * ref, pivot, u * ref, repivot)
+            u = u_ref / ref
         return RigidMotion(w * r, pivot, u * r)
 
 
@@ -194,10 +199,10 @@ class RigidMotion(NamedTuple):
 
 def absorb_translation(w: torch.Tensor, pivot: torch.Tensor, u: torch.Tensor, damping: float
                        ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The same motion at r = 1 with as little translation as the rotation allows: the pivot moves by
+    """The same motion with as little translation as its rotation allows: the pivot moves by
     d = -(A^T A + damping^2 I)^-1 A^T u (A = R(w) - I) and the translation becomes u + A d, so that
     x + A (x - pivot) + u is unchanged; all (B, N, 3). A turn about a vertex's own axis plus a shift fits a
-    joint's turn at r = 1 as well as the turn about the joint, but scaling r (magnitude 2, a partial gate) turns
+    joint's turn at the trained r as well as the turn about the joint, but scaling r (magnitude 2, a partial gate) turns
     and shifts it the wrong way; about the absorbed pivot it turns about the joint. `damping` (radians) keeps
     vertices that barely turn from taking a far pivot; the part along the axis cannot be absorbed."""
     a = axis_angle_to_matrix(w) - torch.eye(3, dtype=w.dtype, device=w.device)

@@ -111,15 +111,17 @@ def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, del
             "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose"))}
 
 
-def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repivot: float = 0.0) -> np.ndarray:
+def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repivot: float = 0.0,
+            magnitude: float = 1.0) -> np.ndarray:
     """One prediction on a whole mesh in eval mode (no training noise), leaving the decoder's mode as it was;
-    `smooth`: `surface_smoother(...)` of the mesh; `rigid`: its `part_rigidifier(...)`; `repivot`: as the config's."""
+    `smooth`: `surface_smoother(...)` of the mesh; `rigid`: its `part_rigidifier(...)`; `repivot`: as the config's;
+    `magnitude` scales the delta's length."""
     b = _batch_tensors([inputs])
     was = decoder.training
     decoder.eval()
     with torch.no_grad():
         out = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
-                      b["delta_dir"], b["r"], b["kind"], smooth=smooth, repivot=repivot)
+                      b["delta_dir"], b["r"] * magnitude, b["kind"], smooth=smooth, repivot=repivot, r_ref=b["r"])
         if rigid is not None:
             out = rigid(b["v_src"], out)
     decoder.train(was)
