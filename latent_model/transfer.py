@@ -308,17 +308,18 @@ class Transfer:
         signal = float(sum(w * s for w, s in zip(weights, signals)))
         motions = [self._motion(mesh, *self._condition(x, 1.0, kind), magnitude) for x in deltas]
         v = torch.from_numpy(mesh.vertices)[None].to(self.device)
-        rigid = self._rigid_parts(mesh)
-        raw = rigid(v, apply_motion(v, mix_motions(motions, weights)))[0].cpu().numpy()
+        move = self._mover(mesh)
+        raw = move(v, mix_motions(motions, weights))[0].cpu().numpy()
         if gate == 1.0:
             return raw, raw, gate, signal
-        gated = rigid(v, apply_motion(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)])))
+        gated = move(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
         return raw, gated[0].cpu().numpy(), gate, signal
 
-    def _rigid_parts(self, mesh: PreparedMesh):
-        """(v_src, v_pred) -> v_pred with hands and feet moved as rigid parts (`part_rigidifier`), or unchanged."""
+    def _mover(self, mesh: PreparedMesh):
+        """(v_src, RigidMotion) -> moved vertices: `apply_motion`, with hands and feet as rigid parts
+        (`part_rigidifier`) unless the config says not."""
         if not self.model.cfg.motion.rigid_parts:
-            return lambda v, y: y
+            return apply_motion
         return mesh.cache("motion_rigid", self.device, lambda: part_rigidifier(mesh.surface.coords))
 
     def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,

@@ -163,29 +163,34 @@ def test_a_trained_motion_decoder_predicts_through_transfer_and_its_checkpoint(t
 
 
 def test_rigid_parts_move_hands_and_feet_as_one_and_leave_the_rest(stances):
-    """On a real body: a bent, crumpled motion of the foot and hand becomes a rigid one in their cores
-    (edge lengths kept there), the wrist and the body above stay as predicted, the transition is smooth
-    (no vertex jumps by more than the crumpling), and a still prediction comes back exactly."""
-    from latent_model.nn.motion_decoder import RIGID_PARTS, part_rigidifier
+    """On a real body: a bent, crumpled motion of the feet and hands (per-vertex rotations and pivots that
+    disagree) becomes a rigid one in each part's core (edge lengths kept there), the body past the parts keeps its
+    own, a magnitude sweep moves without jumps, and a zero motion stays exactly zero."""
+    from latent_model.nn.motion_decoder import RIGID_PARTS, RigidMotion, apply_motion, part_rigidifier
 
     v, sf = stances["bind"]
     x = torch.from_numpy(v)[None].float()
     g = torch.Generator().manual_seed(0)
-    crumple = 0.02 * torch.randn(1, len(v), 3, generator=g)
-    y = x + torch.tensor([0.05, 0.0, 0.0]) + crumple  # a shift of everything, plus 2 cm of per-vertex noise
-    out = part_rigidifier(sf.coords)(x, y)
-    for name, (col, core, edge) in RIGID_PARTS.items():
+    n = len(v)
+    m = RigidMotion(torch.tensor([0.4, 0.0, 0.0]) + 0.2 * torch.randn(1, n, 3, generator=g),
+                    x + 0.05 * torch.randn(1, n, 3, generator=g), 0.02 * torch.randn(1, n, 3, generator=g))
+    rigidify = part_rigidifier(sf.coords)
+    y = rigidify(x, m)
+    exact = "donot_use_mm_for_euclid_dist"
+    for name, (col, core, _) in RIGID_PARTS.items():
         inner = np.flatnonzero(sf.coords[:, col] < core)
         assert len(inner) > 50, name
-        exact = "donot_use_mm_for_euclid_dist"
         d_src = torch.cdist(x[0, inner[:200]], x[0, inner[:200]], compute_mode=exact)
-        d_out = torch.cdist(out[0, inner[:200]], out[0, inner[:200]], compute_mode=exact)
+        d_out = torch.cdist(y[0, inner[:200]], y[0, inner[:200]], compute_mode=exact)
         assert (d_out - d_src).abs().max() < 1e-4, name  # rigid
-        assert (out[0, inner] - x[0, inner] - torch.tensor([0.05, 0.0, 0.0])).norm(dim=-1).mean() < 0.01, name
+        assert (apply_motion(x, m)[0, inner] - y[0, inner]).norm(dim=-1).max() > 0.01, name  # it was not
     far = np.flatnonzero((sf.coords[:, 2:6] > 0.14).all(axis=1))
-    assert torch.equal(out[0, far], y[0, far])
-    assert (out - y).norm(dim=-1).max() < 0.1
-    assert torch.equal(part_rigidifier(sf.coords)(x, x.clone()), x)
+    assert torch.equal(y[0, far], apply_motion(x, m)[0, far])
+    steps = [rigidify(x, RigidMotion(m.w * a, m.pivot, m.u * a)) for a in np.linspace(0.0, 1.0, 21)]
+    moves = torch.stack([(b - a).norm(dim=-1).max() for a, b in zip(steps, steps[1:])])
+    assert moves.max() < 3 * moves.median()  # continuous along a magnitude sweep
+    zero = RigidMotion(torch.zeros_like(m.w), m.pivot, torch.zeros_like(m.u))
+    assert torch.equal(rigidify(x, zero), x)
 
 
 def test_transfer_moves_hands_and_feet_rigidly_unless_the_config_says_not(tiny_motion, tiny_corpus):

@@ -237,12 +237,15 @@ RIGID_PARTS = {"hand_left": (2, 0.07, 0.10), "hand_right": (3, 0.07, 0.10),
                "foot_left": (4, 0.09, 0.13), "foot_right": (5, 0.09, 0.13)}
 
 
-def part_rigidifier(coords, parts: dict[str, tuple[int, float, float]] | None = None):
-    """A function (v_src, v_pred) (B, N, 3) -> (B, N, 3) that replaces the predicted motion of each distal part
-    (hands and feet, located by the geodesic coordinates `coords` (N, 6) of `latent_model/surface.py`, any
-    topology) by its best rigid fit (weighted Kabsch), blended back to the prediction towards the part's border.
-    A per-vertex motion averaged over neighbours still bends and crumples a hand or a foot (toes folded at a full
-    knee bend); a part's bones do not bend. Exactly the prediction where it equals the source (magnitude 0)."""
+def part_rigidifier(coords, parts: dict[str, tuple[int, float, float]] | None = None, prior: float = 1.0):
+    """A function (v_src (B, N, 3), motion: RigidMotion) -> (B, N, 3) moved vertices, in which each distal part
+    (hands and feet, located by the geodesic coordinates `coords` (N, 6) of `latent_model/surface.py`, any topology)
+    moves by the best rigid fit (weighted Kabsch) of its predicted positions, blended back to the prediction
+    towards the part's border. Neighbour averaging still leaves a hand or a foot bent and crumpled (toes folded at
+    a full knee bend); a part's bones do not bend. A foot or a hand is long and thin, so the turn about its long
+    axis is barely determined by crumpled positions and can jump between blend steps: `prior` (a fraction of the
+    part's spread) pulls it to the part's mean predicted rotation. A still prediction (magnitude 0) is returned
+    exactly."""
     import numpy as np
 
     c = np.asarray(coords, dtype=np.float64)
@@ -255,7 +258,8 @@ def part_rigidifier(coords, parts: dict[str, tuple[int, float, float]] | None = 
         if len(idx) >= 3:
             weights.append((torch.from_numpy(idx), torch.from_numpy(s[idx]).float()))
 
-    def rigidify(v_src: torch.Tensor, v_pred: torch.Tensor) -> torch.Tensor:
+    def rigidify(v_src: torch.Tensor, m: RigidMotion) -> torch.Tensor:
+        v_pred = apply_motion(v_src, m)
         out = v_pred.clone()
         for idx, s in weights:
             x, y = v_src[:, idx], v_pred[:, idx]
@@ -264,7 +268,10 @@ def part_rigidifier(coords, parts: dict[str, tuple[int, float, float]] | None = 
             sx = s.to(x)[None, :, None]
             w = sx / sx.sum()
             cx, cy = (w * x).sum(1, keepdim=True), (w * y).sum(1, keepdim=True)
-            h = torch.einsum("bni,bnj->bij", w * (x - cx), y - cy)
+            h = torch.einsum("bni,bnj->bij", w * (x - cx), y - cy)  # = C R^T for y = R x
+            spread = torch.einsum("bni,bni->b", w * (x - cx), x - cx)[:, None, None]
+            mean_rot = axis_angle_to_matrix((w * m.w[:, idx]).sum(1))  # (B, 3, 3)
+            h = h + prior * spread / 3.0 * mean_rot.transpose(1, 2)
             u, _, vt = torch.linalg.svd(h)
             d = torch.sign(torch.det(vt.transpose(1, 2) @ u.transpose(1, 2)))
             fix = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))

@@ -120,10 +120,10 @@ def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repiv
     was = decoder.training
     decoder.eval()
     with torch.no_grad():
-        out = decoder(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
-                      b["delta_dir"], b["r"] * magnitude, b["kind"], smooth=smooth, repivot=repivot, r_ref=b["r"])
-        if rigid is not None:
-            out = rigid(b["v_src"], out)
+        m = decoder.rigid_motion(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
+                                 b["delta_dir"], b["r"] * magnitude, b["kind"], smooth=smooth, repivot=repivot,
+                                 r_ref=b["r"])
+        out = (apply_motion if rigid is None else rigid)(b["v_src"], m)
     decoder.train(was)
     return out[0].numpy()
 
