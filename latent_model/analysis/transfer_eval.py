@@ -118,10 +118,13 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                 "offset_mean": v_src + mean_offset,
             }
             n_true = vertex_normals(truth, faces)
+            seen: dict[int, dict] = {}  # an ungated output is the gated one when the gate is open: measured once
             for name, pred in preds.items():
-                e = mesh_errors(pred, truth, v_src)
-                e["normal"] = normal_consistency(vertex_normals(pred, faces), n_true)
-                per.setdefault((kind, pose_key(p), name), []).append(e)
+                if id(pred) not in seen:
+                    e = mesh_errors(pred, truth, v_src)
+                    e["normal"] = normal_consistency(vertex_normals(pred, faces), n_true)
+                    seen[id(pred)] = e
+                per.setdefault((kind, pose_key(p), name), []).append(dict(seen[id(pred)]))
             if p.identity == example_identity and (p.pose in EXAMPLE_POSES or kind == "skinning_to_skinning_plus_blendshape"
                                                    and p.pose == "elbowBentLf"):
                 examples[(kind, pose_key(p))] = {"source": v_src, "truth": truth,
