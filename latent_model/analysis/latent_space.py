@@ -67,9 +67,9 @@ class SampleCache:
         return self._data[key]
 
 
-def analysis_identities(corpus: Corpus, n: int = 20) -> list[int]:
-    """The 20 identities of analyses 2-3: every held-out identity, then training ones."""
-    test, train = corpus.split_indices("test"), corpus.split_indices("train")
+def analysis_identities(corpus: Corpus, n: int = 20, split: str = "test") -> list[int]:
+    """The 20 identities of analyses 2-3: every held-out identity (of `split`), then training ones."""
+    test, train = corpus.split_indices(split), corpus.split_indices("train")
     return (test + train)[:n]
 
 
@@ -85,10 +85,11 @@ def pose_deltas(src: LatentSource, corpus: Corpus, ids: list[int], pose: str) ->
 
 
 def latent_analyses(src: LatentSource, corpus: Corpus, resamples: int = 5, pose_noise_ids: int = 4,
-                    progress: Callable[[str], None] | None = None) -> tuple[dict, dict]:
-    """(metrics with the report's flat keys under `latent.`, figure data)."""
+                    progress: Callable[[str], None] | None = None, split: str = "test") -> tuple[dict, dict]:
+    """(metrics with the report's flat keys under `latent.`, figure data) on the held-out characters of `split`
+    ("val" to choose a model, "test" once for the report)."""
     say = progress or (lambda _m: None)
-    test = corpus.split_indices("test")
+    test = corpus.split_indices(split)
     poses = tuple(corpus.poses)
     singles = single_poses(poses)
     m: dict = {}
@@ -101,7 +102,7 @@ def latent_analyses(src: LatentSource, corpus: Corpus, resamples: int = 5, pose_
             m[f"latent.pose_consistency.{pose}.{k}"] = st[k]
 
     say("identity separation")
-    ids20 = analysis_identities(corpus)
+    ids20 = analysis_identities(corpus, split=split)
     neutral = src.standardise(src.codes([corpus.state(i, None, "neutral") for i in ids20]))
     identity = pairwise_distances(neutral)  # condensed: the 190 distinct pairs
     d_id = squareform(identity)
