@@ -99,6 +99,18 @@ def test_latent_metrics_are_deterministic(report, model_files, tiny_corpus, tmp_
             assert again[k] == pytest.approx(v, rel=1e-6, abs=1e-9), k
 
 
+def test_baselines_are_kept_per_corpus_and_read_back_unchanged(tiny_corpus, tmp_path):
+    """The no-learning baselines depend on the corpus alone: a second evaluation reads them from the cache, equal."""
+    from latent_model.analysis.latent_space import SampleCache
+    from latent_model.analysis.report import baseline_analyses
+
+    lat, fig, cached = baseline_analyses(tiny_corpus, SampleCache(tiny_corpus), lambda _m: None, tmp_path)
+    assert not cached and len(list(tmp_path.glob("baselines_*.pkl"))) == 1
+    again, fig2, cached = baseline_analyses(tiny_corpus, SampleCache(tiny_corpus), lambda _m: None, tmp_path)
+    assert cached and again == lat
+    assert np.array_equal(fig2["pca16"]["identity_matrix"][0], fig["pca16"]["identity_matrix"][0])
+
+
 def test_evaluate_refuses_a_corpus_the_checkpoint_was_not_trained_on(model_files, tiny_corpus, tmp_path):
     """A checkpoint records its corpus's digest; evaluating it against a corpus built by another
     config or generator version (e.g. after a rig fix) would score it on the wrong ground truth."""

@@ -40,17 +40,21 @@ def add_arguments(p) -> None:
     p.add_argument("--corpus", help="corpus directory (default: the checkpoint preset's)")
     p.add_argument("--out", required=True, help="report directory (report.md, metrics.json, *.png)")
     p.add_argument("--transfer-ids", type=int, default=0, help="held-out identities in the mesh analysis (0 = all)")
+    p.add_argument("--fresh-baselines", action="store_true",
+                   help="recompute the no-learning baselines (default: kept per corpus in $LRR_DATA/cache/baselines)")
     p.add_argument("--quiet", action="store_true")
 
 
 def run_cli(args) -> None:
+    from latent_model.config import data_root
     from latent_model.shipped import ShippedPaths
 
     ckpt = Path(args.checkpoint) if args.checkpoint else ShippedPaths.at().checkpoint
     bank = Path(args.bank) if args.bank else ckpt.with_name("bank.safetensors")
     t = time.perf_counter()
     out = evaluate(ckpt, bank, Path(args.corpus) if args.corpus else None, Path(args.out),
-                   transfer_ids=args.transfer_ids, progress=not args.quiet)
+                   transfer_ids=args.transfer_ids, progress=not args.quiet,
+                   baseline_cache=None if args.fresh_baselines else data_root() / "cache" / "baselines")
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
 
 
@@ -95,11 +99,44 @@ def check_corpus_matches(meta: dict, checkpoint: Path, corpus) -> None:
                       f"--preset {corpus.config.preset} --force` or evaluate a checkpoint trained on this corpus")
 
 
+def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, dict, bool]:
+    """({name: metrics}, {name: figure data}, whether they came from the cache) of the no-learning baselines (grid SDF -> PCA, BASELINE_DIMS). They
+    depend on the corpus alone, not on the model under evaluation: kept in `cache` (a directory; None: always
+    computed), keyed by the corpus digest and the analysis code, so evaluating a second model skips them."""
+    import hashlib
+    import pickle
+
+    from latent_model.analysis import latent_space, metrics, sources
+    from latent_model.atomic import atomic_write_bytes
+
+    code = b"".join(Path(m.__file__).read_bytes() for m in (latent_space, metrics, sources))
+    key = hashlib.sha256(corpus.manifest["config_digest"].encode() + repr(BASELINE_DIMS).encode() + code).hexdigest()
+    path = None if cache is None else Path(cache) / f"baselines_{key[:20]}.pkl"
+    if path is not None and path.exists():
+        try:
+            lat, fig = pickle.loads(path.read_bytes())
+            say(f"no-learning baselines from {path} (the same corpus and analysis code)")
+            return lat, fig, True
+        except Exception as e:  # a cache written by another version: recompute it
+            say(f"baseline cache {path} unreadable ({e}); recomputing")
+    lat, fig = {}, {}
+    grid = sources.SdfGrid(corpus)
+    for dims in BASELINE_DIMS:
+        say(f"no-learning baseline: grid SDF -> PCA{dims}")
+        src = sources.pca_baseline_source(corpus, samples, dims, grid=grid)
+        lat[src.name], fig[src.name] = latent_space.latent_analyses(src, corpus, progress=say)
+    if path is not None:
+        atomic_write_bytes(path, pickle.dumps((lat, fig)))
+    return lat, fig, False
+
+
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
-             progress: bool = True) -> Path:
+             progress: bool = True, baseline_cache: Path | None = None) -> Path:
+    """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
+    keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time)."""
     from latent_model.analysis import figures
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
-    from latent_model.analysis.sources import SdfGrid, model_source, pca_baseline_source
+    from latent_model.analysis.sources import model_source
     from latent_model.analysis.decoder_eval import evaluate_decoder
     from latent_model.analysis.transfer_eval import evaluate_transfer
     from latent_model.bank import LatentBank
@@ -134,11 +171,9 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     lat["model"], figdata["model"] = latent_analyses(sources["model"], corpus, progress=say)
     timings["latent_model_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    grid = SdfGrid(corpus)
-    for dims in BASELINE_DIMS:
-        say(f"no-learning baseline: grid SDF -> PCA{dims}")
-        src = pca_baseline_source(corpus, samples, dims, grid=grid)
-        lat[src.name], figdata[src.name] = latent_analyses(src, corpus, progress=say)
+    base_lat, base_fig, cached = baseline_analyses(corpus, samples, say, baseline_cache)
+    lat.update(base_lat)
+    figdata.update(base_fig)
     timings["latent_baselines_s"] = time.perf_counter() - t
 
     say("mesh transfer on held-out identities")
@@ -184,6 +219,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     timings["total_s"] = time.perf_counter() - t0
     metrics.update({f"timing.{k}": v for k, v in timings.items()})
     metrics["meta.checkpoint"] = str(checkpoint)
+    metrics["meta.baselines_from_cache"] = cached
     metrics["meta.test_identities"] = [corpus.identities[i].id for i in ids]
     metrics["meta.analysis_identities"] = [corpus.identities[i].id for i in analysis_identities(corpus)]
     atomic_write_json(out / "metrics.json", metrics)
@@ -225,7 +261,9 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
     out = ["# LatentReRig evaluation", "",
            f"Held-out identities: {test_names}. Standardisation: training-state statistics of each encoder. "
            f"Baselines `pca16`/`pca512`: the same SDF samples on a fixed 5 cm grid -> PCA (no learning). "
-           f"Evaluation time: {m['timing.total_s']:.0f} s.", ""]
+           f"Evaluation time: {m['timing.total_s']:.0f} s"
+           + (" (the baselines from the cache of an earlier evaluation on this corpus)." if m.get("meta.baselines_from_cache")
+              else "."), ""]
 
     out += ["## 1. Pose consistency (cross-identity cosine of Δμ, held-out identities)", ""]
     rows = []
