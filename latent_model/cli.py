@@ -260,13 +260,24 @@ def cmd_sheet(args) -> None:
 
 
 def cmd_train(args) -> None:
+    from latent_model.train.loop import close_distributed, init_distributed
+
+    init_distributed()
+    done = False
+    try:
+        _train(args)
+        done = True
+    finally:
+        close_distributed(wait=done)
+
+
+def _train(args) -> None:
     from latent_model.config import data_root, override, preset
     from latent_model.corpus.store import Corpus
     from latent_model.runtime import select_device
-    from latent_model.train.loop import dist_info, init_distributed
+    from latent_model.train.loop import dist_info
     from latent_model.train.phases import train
 
-    init_distributed()
     try:
         p = override(preset(args.preset), args.set or [])
     except ValueError as e:
@@ -378,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--fresh", action="store_true", help="ignore resume state and start the phase(s) over")
     t.add_argument("--set", action="append", metavar="SECTION.FIELD=VALUE",
                    help="override one preset field for this run (repeatable; stored in the checkpoint), "
-                        "e.g. --set train.a_mirrors=true --set loss.mirror=1")
+                        "e.g. --set train.a_steps=3000 --set loss.mirror=0")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.set_defaults(func=cmd_train)
 

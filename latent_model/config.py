@@ -135,7 +135,7 @@ class LossWeights:
     contrast: float = 0.1  # supervised InfoNCE on normalised deltas (separates poses)
     contrast_temperature: float = 0.1  # its temperature
     align: float = 3.0  # alignment: mean 1 - cos of same-pose deltas of different identities
-    mirror: float = 0.0  # laterality: mean max(0, cos) of one character's deltas of a pose and its mirror
+    mirror: float = 1.0  # laterality: mean max(0, cos) of one character's deltas of a pose and its mirror
     pos: float = 1.0  # vertex RMSE over the batch
     pos_rel: float = 0.02  # per-pair RMSE relative to the pair's own motion (+2 mm)
     knn: float = 0.5  # KNN edge lengths
@@ -154,7 +154,7 @@ class TrainConfig:
     a_steps: int = 6000  # Phase A steps
     a_identities: int = 4  # identities per Phase A batch (all see the same poses: contrastive positives)
     a_poses: int = 4  # single poses per identity per batch (+ a combo with components + variants)
-    a_mirrors: bool = False  # a sided pose comes with its mirror (hard negatives: the encoder barely tells L from R)
+    a_mirrors: bool = True  # a sided pose comes with its mirror (hard negatives: without, the encoder barely tells L from R)
     a_enc_points: int = 2048  # SDF samples fed to the encoder per state (subset of K)
     a_query_points: int = 256  # SDF decoder queries per state
     a_lr: float = 1e-3  # Phase A learning rate

@@ -376,7 +376,7 @@ def test_mirror_cosine_penalises_shared_directions_only():
 
 
 def test_phase_a_batches_bring_mirrors_as_hard_negatives_when_asked(tiny_corpus):
-    """With a_mirrors every sided pose of a batch comes with its mirror, paired per identity, and
+    """With a_mirrors (the default) every sided pose of a batch comes with its mirror, paired per identity, and
     the mirror term enters Phase A's loss; without, a side is often drawn alone."""
     import dataclasses
 
@@ -409,5 +409,6 @@ def test_phase_a_batches_bring_mirrors_as_hard_negatives_when_asked(tiny_corpus)
         return elbows & set(batch.pose_label[batch.contrast_rows].tolist())
 
     assert all(len(sides(b)) != 1 for b in batches)
-    plain = PhaseASampler(tiny_corpus, preset("tiny"), seed=0)
+    off = dataclasses.replace(p, train=dataclasses.replace(p.train, a_mirrors=False))
+    plain = PhaseASampler(tiny_corpus, off, seed=0)
     assert any(len(sides(plain.sample())) == 1 for _ in range(20))

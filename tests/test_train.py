@@ -187,14 +187,15 @@ def test_decoder_v2_retrains_alone_on_a_finished_phase_b(run_a, tiny_corpus, tmp
 
 
 def test_train_set_overrides_a_preset_field_and_the_checkpoint_keeps_it(tiny_corpus, tmp_path):
-    """`lrr train --set train.a_mirrors=true --set loss.mirror=1` trains with those values and stores
-    them in the checkpoint's preset (what bank and evaluate read); a wrong field or type is refused
-    with the valid names, before any training."""
+    """`lrr train --set train.a_mirrors=false --set loss.mirror=0` trains with those values (not the defaults) and
+    stores them in the checkpoint's preset (what bank and evaluate read); a wrong field or type is refused with the
+    valid names, before any training."""
     from latent_model.config import override
 
-    p = override(preset("tiny"), ["train.a_mirrors=true", "loss.mirror=1", "model.motion.steps=7"])
-    assert p.train.a_mirrors is True and p.loss.mirror == 1.0 and p.model.motion.steps == 7
-    assert p.model.latent == preset("tiny").model.latent and preset("tiny").loss.mirror == 0.0
+    assert preset("tiny").train.a_mirrors is True and preset("tiny").loss.mirror == 1.0  # the defaults
+    p = override(preset("tiny"), ["train.a_mirrors=false", "loss.mirror=0", "model.motion.steps=7"])
+    assert p.train.a_mirrors is False and p.loss.mirror == 0.0 and p.model.motion.steps == 7
+    assert p.model.latent == preset("tiny").model.latent
     for bad, said in (("loss.mirrors=1", "valid:"), ("train.a_mirrors=3", "bool"), ("corpus.seed=1", "SECTION"),
                       ("loss.mirror", "SECTION")):
         with pytest.raises(ValueError, match=said):
@@ -204,9 +205,9 @@ def test_train_set_overrides_a_preset_field_and_the_checkpoint_keeps_it(tiny_cor
             "--corpus", str(tiny_corpus.path), "--run-dir", str(tmp_path), "--quiet"]
     r = subprocess.run(base + ["--set", "loss.mirrors=1"], env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "loss.mirrors" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run(base + ["--set", "train.a_mirrors=true", "--set", "loss.mirror=1"], env=env,
+    r = subprocess.run(base + ["--set", "train.a_mirrors=false", "--set", "loss.mirror=0"], env=env,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     _, stored, _ = load_checkpoint(tmp_path / "phase_a.safetensors")
-    assert stored.train.a_mirrors is True and stored.loss.mirror == 1.0
-    assert '"mirror"' in (tmp_path / "metrics_a.jsonl").read_text()  # the term was computed
+    assert stored.train.a_mirrors is False and stored.loss.mirror == 0.0
+    assert '"mirror"' not in (tmp_path / "metrics_a.jsonl").read_text()  # the term was off

@@ -40,6 +40,16 @@ def dist_info() -> tuple[int, int]:
     return 0, 1
 
 
+def close_distributed(wait: bool = True) -> None:
+    """End the process group, after every rank got here when `wait` (not after an error: the others may never come).
+    A rank that exits with the group alive can abort in gloo's threads ("terminate called without an active
+    exception", seen once in five 2-process runs)."""
+    if dist.is_available() and dist.is_initialized():
+        if wait:
+            dist.barrier()
+        dist.destroy_process_group()
+
+
 def init_distributed() -> bool:
     """Start the process group under torchrun (gloo on CPU, nccl on GPU). Returns whether distributed."""
     if "WORLD_SIZE" not in os.environ or int(os.environ["WORLD_SIZE"]) <= 1:
