@@ -100,16 +100,18 @@ def check_corpus_matches(meta: dict, checkpoint: Path, corpus) -> None:
 
 
 def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, dict, bool]:
-    """({name: metrics}, {name: figure data}, whether they came from the cache) of the no-learning baselines (grid SDF -> PCA, BASELINE_DIMS). They
-    depend on the corpus alone, not on the model under evaluation: kept in `cache` (a directory; None: always
-    computed), keyed by the corpus digest and the analysis code, so evaluating a second model skips them."""
+    """({name: metrics}, {name: figure data}, whether they came from the cache) of the no-learning baselines (grid
+    SDF -> PCA, BASELINE_DIMS). They depend on the corpus alone, not on the model under evaluation: kept in `cache`
+    (a directory; None: always computed), keyed by the corpus digest and the code of the analyses and of the SDF
+    re-sampling, so evaluating a second model skips them."""
     import hashlib
     import pickle
 
     from latent_model.analysis import latent_space, metrics, sources
     from latent_model.atomic import atomic_write_bytes
+    from latent_model.corpus import sdf
 
-    code = b"".join(Path(m.__file__).read_bytes() for m in (latent_space, metrics, sources))
+    code = b"".join(Path(m.__file__).read_bytes() for m in (latent_space, metrics, sources, sdf))
     key = hashlib.sha256(corpus.manifest["config_digest"].encode() + repr(BASELINE_DIMS).encode() + code).hexdigest()
     path = None if cache is None else Path(cache) / f"baselines_{key[:20]}.pkl"
     if path is not None and path.exists():
