@@ -76,6 +76,9 @@ class MotionDecoderConfig:
     smooth: int = 40  # at inference, rounds of averaging the per-vertex motion over surface neighbours
     rigid_parts: bool = True  # at inference, hands and feet move as rigid parts (nn/motion_decoder.RIGID_PARTS)
     repivot: float = 0.15  # at inference, > 0: translations absorbed into pivots (absorb_translation, its damping)
+    # at inference, > 0: the motion at the delta's own length is refitted to the surface's turns over balls of
+    # this radius (m; local_motion_fit, heat_averager) before the magnitude scales it; 0: its own parameters scale
+    refit_radius: float = 0.15
     poses: str = "body"  # the poses it trains on: "body" (skeletal single poses and their combos) or "all"
     steps: int = 6000  # training steps
     batch: int = 16  # pairs per step

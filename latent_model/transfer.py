@@ -26,7 +26,8 @@ import torch
 from latent_model.bank import LatentBank
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
 from latent_model.nn.delta import normalised_delta
-from latent_model.nn.motion_decoder import RigidMotion, apply_motion, mix_motions, part_rigidifier, surface_smoother
+from latent_model.nn.motion_decoder import (RigidMotion, apply_motion, heat_averager, local_motion_fit, mix_motions,
+                                            part_rigidifier, surface_smoother)
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
@@ -262,25 +263,52 @@ class Transfer:
             if d_b is not None:
                 d = (1.0 - blend) * d + blend * d_b
                 averaged = 1.0 / ((1.0 - blend) ** 2 / n + blend ** 2 / n_b)  # the mix's noise, independent deltas
-            gate, signal = self.noise_gate(d, averaged)
-            if magnitude == 0:
-                gate = 0.0
-            raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
-            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+            raw, gated, gate, signal = self._gated_fields_or_network(mesh, predictor, [(d, averaged)], magnitude, kind)[0]
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
 
+    @torch.no_grad()
+    def predict_details(self, mesh: PreparedMesh, pose: str, strategies: list[Strategy], kind: PairKind = "neutral_to_pose",
+                        oracle_target_mu: np.ndarray | None = None) -> list[TransferOutput]:
+        """`predict_detail(mesh, pose, s, kind=kind)` for each strategy s, the same numbers; where the decoder
+        network predicts the kind, all strategies run as one batch (an evaluation predicts mean, nearest and
+        oracle of every pair: one batched pass of 14k vertices costs less than three single ones)."""
+        predictor = self.predicts_with(kind)
+        if predictor == "motion":
+            return [self.predict_detail(mesh, pose, s, kind=kind, oracle_target_mu=oracle_target_mu) for s in strategies]
+        found = [self.delta(mesh, pose, s, kind, oracle_target_mu) for s in strategies]
+        requests = [(d, self.averaged(pose, s, kind)) for (d, _), s in zip(found, strategies)]
+        novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
+        return [TransferOutput(gated, raw, gate, signal, label, predictor, novelty) for (raw, gated, gate, signal), (_, label)
+                in zip(self._gated_fields_or_network(mesh, predictor, requests, 1.0, kind), found)]
+
+    def _gated_fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, requests: list[tuple[np.ndarray, float]],
+                                 magnitude: float, kind: PairKind) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
+        """(raw, gated (V, 3), gate, signal) for each (raw delta, deltas it averages), predicted in one batch."""
+        raws = self._fields_or_network(mesh, predictor, np.stack([d for d, _ in requests]), magnitude, kind)
+        out = []
+        for (d, averaged), raw in zip(requests, raws):
+            gate, signal = self.noise_gate(d, averaged)
+            if magnitude == 0:
+                gate = 0.0
+            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+            out.append((raw, gated, gate, signal))
+        return out
+
     def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""
-        direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(self.device))
-        return direction, r * magnitude, torch.tensor([PAIR_KINDS.index(kind)], device=self.device)
+        """(direction (B, Z), r (B,) scaled by the magnitude, kind (B,)) of raw deltas (Z,) or (B, Z), on the device."""
+        d = torch.from_numpy(np.atleast_2d(np.asarray(d, np.float32))).to(self.device)
+        direction, r = normalised_delta(d)
+        return direction, r * magnitude, torch.full((len(d),), PAIR_KINDS.index(kind), device=self.device)
 
     def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, d: np.ndarray, magnitude: float,
                            kind: PairKind) -> np.ndarray:
-        """(V, 3) the pose fields' prediction, or the network's (which reads the fields too)."""
+        """(B, V, 3) the pose fields' prediction, or the network's (which reads the fields too), for raw deltas
+        d (B, Z): the mesh's tensors are broadcast over the batch of conditions."""
         dev, fields = self.device, self.model.pose_fields
         direction, r, k = self._condition(d, magnitude, kind)
+        b = len(direction)
         v = torch.from_numpy(mesh.vertices)[None].to(dev)
         field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         if predictor == "pose_fields":
@@ -289,10 +317,11 @@ class Transfer:
             vd = self.model.vertex_decoder
             n = torch.from_numpy(mesh.normals)[None].to(dev)
             features = mesh.cache("decoder", dev, lambda: vd.mesh_features(v, n))
-            raw_t = vd(v, n, torch.from_numpy(mesh.mu)[None].to(dev), direction, r, k,
-                       torch.from_numpy(mesh.knn)[None].to(dev), fields.weights(direction, k), field_disp,
-                       features=features)["vertices"]
-        return raw_t[0].cpu().numpy()
+            knn = torch.from_numpy(mesh.knn)[None].to(dev)
+            each = lambda x: x.expand(b, *x.shape[1:])  # noqa: E731  one mesh, b conditions
+            raw_t = vd(each(v), each(n), torch.from_numpy(mesh.mu)[None].to(dev).expand(b, -1), direction, r, k,
+                       each(knn), fields.weights(direction, k), field_disp, features=each(features))["vertices"]
+        return raw_t.cpu().numpy()
 
     def _motion_prediction(self, mesh: PreparedMesh, a: tuple[np.ndarray, int], b: tuple[np.ndarray, int] | None,
                            blend: float, magnitude: float, kind: PairKind) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -306,14 +335,49 @@ class Transfer:
         gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
-        motions = [self._motion(mesh, *self._condition(x, 1.0, kind), magnitude) for x in deltas]
-        v = torch.from_numpy(mesh.vertices)[None].to(self.device)
-        move = self._mover(mesh)
-        raw = move(v, mix_motions(motions, weights))[0].cpu().numpy()
+        conditions = [self._condition(x, 1.0, kind) for x in deltas]
+        if self.model.cfg.motion.refit_radius <= 0:  # the decoder's own parameters scaled (the model before refits)
+            motions = [self._motion(mesh, *c, magnitude) for c in conditions]
+            v = torch.from_numpy(mesh.vertices)[None].to(self.device)
+            move = self._mover(mesh)
+            raw = move(v, mix_motions(motions, weights))[0].cpu().numpy()
+            if gate == 1.0:
+                return raw, raw, gate, signal
+            gated = move(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
+            return raw, gated[0].cpu().numpy(), gate, signal
+        raw = self._scaled_motions(mesh, conditions, [w * magnitude for w in weights])
         if gate == 1.0:
             return raw, raw, gate, signal
-        gated = move(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
-        return raw, gated[0].cpu().numpy(), gate, signal
+        return raw, self._scaled_motions(mesh, conditions, [w * g * magnitude for w, g in zip(weights, gates)]), gate, signal
+
+    def _scaled_motions(self, mesh: PreparedMesh, conditions: list, scales: list[float]) -> np.ndarray:
+        """(V, 3) the mesh moved by each pose's motion (its `conditions`) times its scale, mixed. One pose at its
+        own length is the decoder's motion with hands and feet rigid (`_mover`); any other mix (a magnitude, a
+        blend, a partial gate) scales and mixes the motions that the surface makes there (`_fitted_motion`), which
+        give the same positions at scale 1, so the prediction is continuous in every slider."""
+        v = torch.from_numpy(mesh.vertices)[None].to(self.device)
+        active = [i for i, s in enumerate(scales) if s != 0]
+        if not active:
+            return mesh.vertices.copy()
+        if len(active) == 1 and scales[active[0]] == 1.0:
+            return self._mover(mesh)(v, self._motion(mesh, *conditions[active[0]]))[0].cpu().numpy()
+        fitted = [self._fitted_motion(mesh, *conditions[i]) for i in active]
+        return apply_motion(v, mix_motions(fitted, [scales[i] for i in active]))[0].cpu().numpy()
+
+    def _fitted_motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> RigidMotion:
+        """The motion the surface makes under the decoder's prediction at the delta's own length (`local_motion_fit`
+        over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
+        cfg, dev = self.model.cfg.motion, self.device
+        fits = mesh.cache("motion_fits", dev, dict)
+        key = (direction.cpu().numpy().tobytes(), float(r), int(k))
+        if key not in fits:
+            v = torch.from_numpy(mesh.vertices)[None].to(dev)
+            moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k))
+            average = mesh.cache("motion_fit_ball", dev, lambda: heat_averager(mesh.vertices, mesh.faces, cfg.refit_radius))
+            if len(fits) >= 16:  # a few poses at a time in the explorer; an evaluation walks through many
+                fits.pop(next(iter(fits)))
+            fits[key] = local_motion_fit(v, moved, average, max(cfg.repivot, 0.05))
+        return fits[key]
 
     def _mover(self, mesh: PreparedMesh):
         """(v_src, RigidMotion) -> moved vertices: `apply_motion`, with hands and feet as rigid parts

@@ -244,3 +244,73 @@ def test_absorbing_the_translation_keeps_r1_and_turns_twice_about_the_joint():
     shift = torch.tensor([[[0.01, 0.0, 0.0]]])
     p3, u3 = absorb_translation(still, still, shift, 0.05)
     assert torch.allclose(u3, shift) and torch.allclose(p3, still)
+
+
+def test_heat_balls_average_on_the_surface_with_positive_weights_summing_to_one(stances):
+    """heat_averager keeps a constant field, spreads a spike with positive weights over a few centimetres of the
+    surface around it and not to the other hand."""
+    from latent_model.nn.motion_decoder import heat_averager
+    from latent_model.surface import surface_features  # noqa: F401  (stances computed them)
+
+    v, sf = stances["bind"]
+    from latent_model.corpus.rig import Rig
+
+    faces = Rig().faces
+    avg = heat_averager(v, faces, 0.1)
+    ones = torch.ones(1, len(v), 2)
+    assert torch.allclose(avg(ones), ones, atol=1e-6)
+    spike = torch.zeros(1, len(v), 1)
+    i = sf.extremities["hand_left"]
+    spike[0, i] = 1.0
+    w = avg(spike)[0, :, 0].numpy()
+    assert w.min() > -1e-9 and abs(w.sum() - 1.0) < 1e-3  # symmetric rates: the column sums to 1 as well
+    d = np.linalg.norm(v - v[i], axis=1)
+    assert w[d < 0.1].sum() > 0.5 and w[sf.extremities["hand_right"]] < 1e-9
+
+
+def test_the_surface_motion_of_a_bent_elbow_scales_to_the_rigs_97_degrees(generator, people):
+    """local_motion_fit of the rig's 47 degree elbow reproduces it exactly at scale 1, and at 97/47 gives the
+    rig's 97 degree elbow within 1.5 cm on the forearm, where doubling the displacement (a straight line per
+    vertex) is decimetres off."""
+    from latent_model.nn.motion_decoder import apply_motion, heat_averager, local_motion_fit, scale_motion
+    from latent_model.types import FINAL
+
+    a, _ = people
+    src = generator.neutral(a).astype(np.float32)
+    bent = getattr(generator.pose(a, "elbowBentLf"), FINAL).astype(np.float32)
+    truth97 = getattr(generator.pose(a, "elbowSuperBentLf"), FINAL).astype(np.float32)
+    forearm = np.linalg.norm(bent - src, axis=1) > 0.05
+    x, y = torch.from_numpy(src)[None], torch.from_numpy(bent)[None]
+    m = local_motion_fit(x, y, heat_averager(src, generator.faces, 0.15), 0.15)
+    assert torch.allclose(apply_motion(x, m), y, atol=1e-4)
+    assert torch.equal(apply_motion(x, scale_motion(m, 0.0)), x)
+    turned = apply_motion(x, scale_motion(m, 97.0 / 47.0))[0].numpy()
+    err = np.linalg.norm(turned[forearm] - truth97[forearm], axis=1).mean()
+    straight = src + 97.0 / 47.0 * (bent - src)
+    assert err < 0.015 and np.linalg.norm(straight[forearm] - truth97[forearm], axis=1).mean() > 0.1  # 11 vs 214 mm
+
+
+def test_transfer_scales_the_surfaces_motion_continuously_and_leaves_magnitude_1_as_predicted(tiny_motion, tiny_corpus):
+    """With refits (the default) magnitude 1 is the decoder's prediction exactly, nearby magnitudes are close to it,
+    0 is the source; magnitude 2 differs from scaling the decoder's own parameters (refit_radius 0)."""
+    import dataclasses
+
+    t, _ = tiny_motion
+    c = tiny_corpus
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    cfg = t.model.cfg
+    assert cfg.motion.refit_radius > 0
+    mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
+    at = {m: t.predict(mesh, "elbowBentLf", magnitude=m) for m in (0.0, 0.99, 1.0, 1.01, 2.0)}
+    try:
+        t.model.cfg = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, refit_radius=0.0))
+        plain = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
+        own1, own2 = (t.predict(plain, "elbowBentLf", magnitude=m) for m in (1.0, 2.0))
+    finally:
+        t.model.cfg = cfg
+    assert np.array_equal(at[0.0], mesh.vertices) and np.allclose(at[1.0], own1, atol=1e-6)
+    step = np.linalg.norm(at[1.0] - mesh.vertices, axis=1).max()
+    assert step > 1e-3
+    for m in (0.99, 1.01):
+        assert np.linalg.norm(at[m] - at[1.0], axis=1).max() < 0.05 * step
+    assert np.linalg.norm(at[2.0] - own2, axis=1).max() > 1e-4
