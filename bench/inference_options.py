@@ -3,8 +3,10 @@
 magnitudes against the rig and the example pairs of `lrr evaluate` (analysis/decoder_eval.py).
 
     python bench/inference_options.py [--checkpoint C] [--bank B] [--corpus DIR] [--options off,rigid,rigid+0.15]
+                                      [--refits 0,0.15]
 
 An option: "off", "rigid" (rigid parts, no repivot), "rigid+D" / "+D" (repivot damping D, with / without rigid parts).
+Each is run with each refit radius of --refits (m; 0: magnitudes scale the decoder's own parameters).
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ def main() -> None:
     ap.add_argument("--bank")
     ap.add_argument("--corpus")
     ap.add_argument("--options", default="off,rigid,rigid+0.15")
+    ap.add_argument("--refits", default=None, help="refit radii (default: the model's)")
     ap.add_argument("--no-examples", action="store_true")
     args = ap.parse_args()
     import torch
@@ -43,14 +46,17 @@ def main() -> None:
     bind = c.split_indices("val", rest="bind")
     generator = StateGenerator()
     base = t.model.cfg
-    for option in args.options.split(","):
+    refits = [float(x) for x in args.refits.split(",")] if args.refits else [base.motion.refit_radius]
+    for option, refit in ((o, f) for o in args.options.split(",") for f in refits):
         rigid, damping = parse_option(option)
-        t.model.cfg = dataclasses.replace(base, motion=dataclasses.replace(base.motion, rigid_parts=rigid, repivot=damping))
+        t.model.cfg = dataclasses.replace(base, motion=dataclasses.replace(base.motion, rigid_parts=rigid, repivot=damping,
+                                                                           refit_radius=refit))
         chars = Characters(t, c)  # fresh meshes: their caches hold the options' per-mesh parts
         m = {**blend_steps(t, chars, bind), **magnitude_truths(t, chars, bind, generator)}
         if not args.no_examples:
             m.update(example_transfer(t, chars, bind, generator))
-        print(f"== {option}: rigid parts {rigid}, repivot {damping:g} ({len(bind)} validation characters in bind)")
+        print(f"== {option}: rigid parts {rigid}, repivot {damping:g}, refit radius {refit:g} ({len(bind)} validation "
+              f"characters in bind)")
         for k in sorted(m):
             if k.startswith("decoder.blend") and k.endswith(("step_ratio", "half_a", "half_b")) \
                     or k.startswith("decoder.magnitude") and k.endswith(("explained", "leak_mm", "strain")) \

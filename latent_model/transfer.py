@@ -263,52 +263,25 @@ class Transfer:
             if d_b is not None:
                 d = (1.0 - blend) * d + blend * d_b
                 averaged = 1.0 / ((1.0 - blend) ** 2 / n + blend ** 2 / n_b)  # the mix's noise, independent deltas
-            raw, gated, gate, signal = self._gated_fields_or_network(mesh, predictor, [(d, averaged)], magnitude, kind)[0]
+            gate, signal = self.noise_gate(d, averaged)
+            if magnitude == 0:
+                gate = 0.0
+            raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
+            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
 
-    @torch.no_grad()
-    def predict_details(self, mesh: PreparedMesh, pose: str, strategies: list[Strategy], kind: PairKind = "neutral_to_pose",
-                        oracle_target_mu: np.ndarray | None = None) -> list[TransferOutput]:
-        """`predict_detail(mesh, pose, s, kind=kind)` for each strategy s, the same numbers; where the decoder
-        network predicts the kind, all strategies run as one batch (an evaluation predicts mean, nearest and
-        oracle of every pair: one batched pass of 14k vertices costs less than three single ones)."""
-        predictor = self.predicts_with(kind)
-        if predictor == "motion":
-            return [self.predict_detail(mesh, pose, s, kind=kind, oracle_target_mu=oracle_target_mu) for s in strategies]
-        found = [self.delta(mesh, pose, s, kind, oracle_target_mu) for s in strategies]
-        requests = [(d, self.averaged(pose, s, kind)) for (d, _), s in zip(found, strategies)]
-        novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
-        return [TransferOutput(gated, raw, gate, signal, label, predictor, novelty) for (raw, gated, gate, signal), (_, label)
-                in zip(self._gated_fields_or_network(mesh, predictor, requests, 1.0, kind), found)]
-
-    def _gated_fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, requests: list[tuple[np.ndarray, float]],
-                                 magnitude: float, kind: PairKind) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
-        """(raw, gated (V, 3), gate, signal) for each (raw delta, deltas it averages), predicted in one batch."""
-        raws = self._fields_or_network(mesh, predictor, np.stack([d for d, _ in requests]), magnitude, kind)
-        out = []
-        for (d, averaged), raw in zip(requests, raws):
-            gate, signal = self.noise_gate(d, averaged)
-            if magnitude == 0:
-                gate = 0.0
-            gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
-            out.append((raw, gated, gate, signal))
-        return out
-
     def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(direction (B, Z), r (B,) scaled by the magnitude, kind (B,)) of raw deltas (Z,) or (B, Z), on the device."""
-        d = torch.from_numpy(np.atleast_2d(np.asarray(d, np.float32))).to(self.device)
-        direction, r = normalised_delta(d)
-        return direction, r * magnitude, torch.full((len(d),), PAIR_KINDS.index(kind), device=self.device)
+        """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""
+        direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(self.device))
+        return direction, r * magnitude, torch.tensor([PAIR_KINDS.index(kind)], device=self.device)
 
     def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, d: np.ndarray, magnitude: float,
                            kind: PairKind) -> np.ndarray:
-        """(B, V, 3) the pose fields' prediction, or the network's (which reads the fields too), for raw deltas
-        d (B, Z): the mesh's tensors are broadcast over the batch of conditions."""
+        """(V, 3) the pose fields' prediction, or the network's (which reads the fields too)."""
         dev, fields = self.device, self.model.pose_fields
         direction, r, k = self._condition(d, magnitude, kind)
-        b = len(direction)
         v = torch.from_numpy(mesh.vertices)[None].to(dev)
         field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         if predictor == "pose_fields":
@@ -317,11 +290,10 @@ class Transfer:
             vd = self.model.vertex_decoder
             n = torch.from_numpy(mesh.normals)[None].to(dev)
             features = mesh.cache("decoder", dev, lambda: vd.mesh_features(v, n))
-            knn = torch.from_numpy(mesh.knn)[None].to(dev)
-            each = lambda x: x.expand(b, *x.shape[1:])  # noqa: E731  one mesh, b conditions
-            raw_t = vd(each(v), each(n), torch.from_numpy(mesh.mu)[None].to(dev).expand(b, -1), direction, r, k,
-                       each(knn), fields.weights(direction, k), field_disp, features=each(features))["vertices"]
-        return raw_t.cpu().numpy()
+            raw_t = vd(v, n, torch.from_numpy(mesh.mu)[None].to(dev), direction, r, k,
+                       torch.from_numpy(mesh.knn)[None].to(dev), fields.weights(direction, k), field_disp,
+                       features=features)["vertices"]
+        return raw_t[0].cpu().numpy()
 
     def _motion_prediction(self, mesh: PreparedMesh, a: tuple[np.ndarray, int], b: tuple[np.ndarray, int] | None,
                            blend: float, magnitude: float, kind: PairKind) -> tuple[np.ndarray, np.ndarray, float, float]:

@@ -154,29 +154,6 @@ def test_cached_mesh_features_change_nothing(setup, tiny_corpus):
         assert not np.allclose(first.raw, mesh.vertices, atol=1e-4)  # it does move the mesh
 
 
-def test_batched_strategies_are_the_single_predictions(setup, tiny_corpus):
-    """predict_details (the evaluation's one batched pass per pair) returns what predict_detail returns for each
-    strategy: vertices, raw output, gate and label, for the pose fields and for the network."""
-    p, model, bank, _ = setup
-    c = tiny_corpus
-    t = Transfer(model, bank, p.corpus.sdf.k)
-    i = c.split_indices("test")[0]
-    strategies = ["mean_pose_delta", "nearest_identity_delta", "oracle"]
-    for kind, variant in (("neutral_to_pose", None), ("skinning_to_skinning_plus_blendshape", "skinning")):
-        s = c.state(i, None, "neutral") if variant is None else c.state(i, "elbowBentLf", variant)
-        target = encode_states(model, c, [c.state(i, "elbowBentLf", "skinning_plus_blendshape")])[0]
-        mesh = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=encode_states(model, c, [s])[0])
-        batched = t.predict_details(mesh, "elbowBentLf", strategies, kind=kind, oracle_target_mu=target)
-        assert len(batched) == 3
-        raws = []
-        for strategy, got in zip(strategies, batched):
-            one = t.predict_detail(mesh, "elbowBentLf", strategy, kind=kind, oracle_target_mu=target)
-            assert got.label == one.label and got.predictor == one.predictor and got.gate == one.gate
-            assert np.allclose(got.raw, one.raw, atol=1e-5) and np.allclose(got.vertices, one.vertices, atol=1e-5)
-            raws.append(got.raw)
-        assert not np.allclose(raws[0], raws[2], atol=1e-4)  # the strategies' conditions differ
-
-
 def test_transfer_derives_only_what_the_pair_kinds_predictor_reads(setup, tiny_corpus):
     """neutral_to_pose with the mean delta is the pose fields alone: it computes no latent, normals
     or neighbourhoods and ignores them (noise in their place changes nothing); the network kinds

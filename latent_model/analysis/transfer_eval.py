@@ -103,9 +103,11 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                 (neutrals if neutral else prepared)[row] = transfer.prepare(v_src, faces, sdf_faces=corpus.body_faces,
                                                                             mu=latent(s))
             mesh = neutrals[row] if row in neutrals else prepared[row]
-            outs = dict(zip(("mean", "nearest", "oracle"), transfer.predict_details(
-                mesh, bkey, ["mean_pose_delta", "nearest_identity_delta", "oracle"], kind=kind,
-                oracle_target_mu=latent(t))))
+            outs = {
+                "mean": transfer.predict_detail(mesh, bkey, "mean_pose_delta", kind=kind),
+                "nearest": transfer.predict_detail(mesh, bkey, "nearest_identity_delta", kind=kind),
+                "oracle": transfer.predict_detail(mesh, bkey, "oracle", kind=kind, oracle_target_mu=latent(t)),
+            }
             for name, o in outs.items():
                 gates.setdefault((kind, pose_key(p), name), []).append(o.gate)
             preds = {

@@ -117,21 +117,18 @@ class PoseFields(nn.Module):
 
     def _cached_displacement(self, cache: FieldCache, delta_dir: torch.Tensor, r: torch.Tensor,
                              kind: torch.Tensor) -> torch.Tensor:
-        """(B, V, 3) for B conditions on the cached mesh (B meshes, or one mesh broadcast over them)."""
-        V = cache.vertices.shape[1]
+        B, V = cache.vertices.shape[:2]
         coef = self.coefficients(delta_dir, r, kind)  # (B, P)
-        B = coef.shape[0]
         kinds = kind.unique().tolist()
         if len(kinds) == 1:  # the usual case (one mesh, one pair kind): no copy of the cache
             poses, u = self._kind_displacements(cache, kinds[0])
             if not len(poses):
-                return torch.zeros(B, V, 3, dtype=cache.vertices.dtype, device=cache.vertices.device)
-            return torch.matmul(coef[:, poses][:, None], u).reshape(B, V, 3)
+                return torch.zeros_like(cache.vertices)
+            return torch.bmm(coef[:, poses][:, None], u).reshape(B, V, 3)
         out = torch.zeros(B, V * 3, device=coef.device)
         for k in kinds:
             poses, u = self._kind_displacements(cache, k)
             rows = kind == k
             if len(poses):
-                u_rows = u.expand(B, -1, -1)[rows]
-                out[rows] = torch.bmm(coef[rows][:, poses][:, None], u_rows)[:, 0]
+                out[rows] = torch.bmm(coef[rows][:, poses][:, None], u[rows])[:, 0]
         return out.reshape(B, V, 3)
