@@ -341,11 +341,12 @@ class Transfer:
         over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
         cfg, dev = self.model.cfg.motion, self.device
         fits = mesh.cache("motion_fits", dev, dict)
-        key = (direction.cpu().numpy().tobytes(), float(r), int(k))
+        key = (direction.cpu().numpy().tobytes(), float(r), int(k), cfg.refit_radius, cfg.rigid_parts, cfg.repivot)
         if key not in fits:
             v = torch.from_numpy(mesh.vertices)[None].to(dev)
             moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k))
-            average = mesh.cache("motion_fit_ball", dev, lambda: heat_averager(mesh.vertices, mesh.faces, cfg.refit_radius))
+            average = mesh.cache(f"motion_fit_ball_{cfg.refit_radius:g}", dev,
+                                 lambda: heat_averager(mesh.vertices, mesh.faces, cfg.refit_radius))
             if len(fits) >= 16:  # a few poses at a time in the explorer; an evaluation walks through many
                 fits.pop(next(iter(fits)))
             fits[key] = local_motion_fit(v, moved, average, max(cfg.repivot, 0.05))

@@ -226,7 +226,7 @@ def local_motion_fit(v_src: torch.Tensor, v_moved: torch.Tensor, average, dampin
     """The per-vertex motion that the moved surface itself makes: each vertex turns as its neighbourhood does (the
     rotation that best maps the neighbourhood, Kabsch on its weighted covariance), about the pivot that leaves the
     least translation (`absorb_translation`), the translation completing the vertex's exact position. v_src, v_moved
-    (B, N, 3); `average`: (B, N, k) -> (B, N, k) weighted neighbourhood means (`surface_smoother`, any topology).
+    (B, N, 3); `average`: (B, N, k) -> (B, N, k) weighted neighbourhood means (`heat_averager`, any topology).
     The decoder is supervised on positions at the trained r only, so its own rotation parameters are free wherever
     a translation makes up for them (at twice r the forearm then swings off the elbow's hinge); the fitted motion
     reproduces the same positions at r and scales as the surface turns."""
@@ -352,7 +352,7 @@ def heat_averager(vertices, faces, radius: float):
     and resolution: one backward-Euler heat step (I + t L)^-1 with edge rates 1 / length^2 and t = radius^2 / 6 (a
     triangle mesh's ~6 edges then spread the heat by `radius`). Its weights are positive and sum to 1 per vertex,
     they stay on the surface (an arm hanging against the torso does not mix with it, as a Euclidean ball would);
-    the sparse factorisation is made once (~0.1 s on 14k vertices), each call is one solve."""
+    the sparse factorisation is made once (0.3-0.6 s on 14k vertices), each call is one solve (tens of ms)."""
     import numpy as np
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
