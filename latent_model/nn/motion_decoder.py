@@ -212,6 +212,15 @@ def absorb_translation(w: torch.Tensor, pivot: torch.Tensor, u: torch.Tensor, da
     return pivot + d, u + (a @ d[..., None])[..., 0]
 
 
+def best_rotation(cov: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) cross-covariances sum w (x - mx)(y - my)^T -> (..., 3, 3) the proper rotations R that best map
+    x onto y (Kabsch: y - my ~ R (x - mx); a reflection is turned into the nearest rotation)."""
+    u, _, vt = torch.linalg.svd(cov)
+    d = torch.sign(torch.det(vt.transpose(-1, -2) @ u.transpose(-1, -2)))
+    fix = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
+    return vt.transpose(-1, -2) @ fix @ u.transpose(-1, -2)
+
+
 def matrix_to_axis_angle(rot: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) rotations -> (..., 3) rotation vectors (angle < 180 degrees; exact 0 at the identity)."""
     cos = ((rot.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0).clamp(-1.0, 1.0)
@@ -234,10 +243,7 @@ def local_motion_fit(v_src: torch.Tensor, v_moved: torch.Tensor, average, dampin
     outer = (v_src[..., :, None] * v_moved[..., None, :]).reshape(b, n, 9)
     mx, my, mxy = average(torch.cat([v_src, v_moved, outer], dim=-1)).split([3, 3, 9], dim=-1)
     cov = mxy.reshape(b, n, 3, 3) - mx[..., :, None] * my[..., None, :]  # sum w (x - mx)(y - my)^T
-    u, _, vt = torch.linalg.svd(cov)
-    d = torch.sign(torch.det(vt.transpose(-1, -2) @ u.transpose(-1, -2)))
-    fix = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
-    w = matrix_to_axis_angle(vt.transpose(-1, -2) @ fix @ u.transpose(-1, -2))
+    w = matrix_to_axis_angle(best_rotation(cov))
     pivot, t = absorb_translation(w, v_src, v_moved - v_src, damping)
     return RigidMotion(w, pivot, t)
 
@@ -307,10 +313,7 @@ def part_rigidifier(coords, parts: dict[str, tuple[int, float, float]] | None = 
             spread = torch.einsum("bni,bni->b", w * (x - cx), x - cx)[:, None, None]
             mean_rot = axis_angle_to_matrix((w * m.w[:, idx]).sum(1))  # (B, 3, 3)
             h = h + prior * spread / 3.0 * mean_rot.transpose(1, 2)
-            u, _, vt = torch.linalg.svd(h)
-            d = torch.sign(torch.det(vt.transpose(1, 2) @ u.transpose(1, 2)))
-            fix = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
-            rot = vt.transpose(1, 2) @ fix @ u.transpose(1, 2)  # (B, 3, 3): y - cy ~ rot (x - cx)
+            rot = best_rotation(h)  # (B, 3, 3): y - cy ~ rot (x - cx)
             rigid = torch.einsum("bij,bnj->bni", rot, x - cx) + cy
             out[:, idx] = y + sx * (rigid - y)
         return out
