@@ -4,7 +4,7 @@ strain; and the blend pose A -> pose B in 0.05 steps (largest step / median step
 
     python bench/motion_closeup.py --checkpoint RUN/model.safetensors --bank RUN/bank.safetensors \
         [--split val] [--rest armsUp35] [--pose elbowBentLf] [--magnitude 1] [--truth-pose P] \
-        [--pose-b kneeBentLf] [--strategy mean_pose_delta] [-o closeup.png]
+        [--pose-b kneeBentLf] [--strategy mean_pose_delta] [--motion KEY=VALUE ...] [-o closeup.png]
 """
 from __future__ import annotations
 
@@ -30,6 +30,8 @@ def main() -> None:
     ap.add_argument("--rigid-parts", choices=("config", "on", "off"), default="config",
                     help="hands and feet as rigid parts: as the checkpoint's config says, or forced on / off")
     ap.add_argument("--repivot", type=float, help="absorb_translation's damping at inference (default: the config's)")
+    ap.add_argument("--motion", action="append", default=[], metavar="KEY=VALUE",
+                    help="any other MotionDecoderConfig inference option, e.g. refit_parts=false, rigid_anchor=0")
     ap.add_argument("-o", "--output", default="closeup.png")
     args = ap.parse_args()
     import matplotlib
@@ -54,6 +56,12 @@ def main() -> None:
         motion = dataclasses.replace(motion, rigid_parts=args.rigid_parts == "on")
     if args.repivot is not None:
         motion = dataclasses.replace(motion, repivot=args.repivot)
+    for item in args.motion:
+        key, _, value = item.partition("=")
+        if not hasattr(motion, key) or not value:
+            raise SystemExit(f"--motion {item!r}: use KEY=VALUE with a MotionDecoderConfig field")
+        kind = type(getattr(motion, key))
+        motion = dataclasses.replace(motion, **{key: value.lower() in ("1", "true", "on") if kind is bool else kind(value)})
     t.model.cfg = dataclasses.replace(t.model.cfg, motion=motion)
     c = Corpus(args.corpus or default_corpus_dir("standard"))
     chars = Characters(t, c)

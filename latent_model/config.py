@@ -75,6 +75,10 @@ class MotionDecoderConfig:
     local_inputs: bool = False  # also read each vertex's normal and medial offset (they made neighbours disagree)
     smooth: int = 40  # at inference, rounds of averaging the per-vertex motion over surface neighbours
     rigid_parts: bool = True  # at inference, hands and feet move as rigid parts (nn/motion_decoder.RIGID_PARTS)
+    # a rigid part's turn is pulled (this fraction of its spread) to the turn of the limb carrying it, over the band
+    # from the part's edge to `rigid_anchor` (over the height) beyond it; anchor 0: to the decoder's mean rotation vector
+    rigid_prior: float = 1.0
+    rigid_anchor: float = 0.06
     repivot: float = 0.15  # at inference, > 0: translations absorbed into pivots (absorb_translation, its damping)
     # at inference, > 0: the motion at the delta's own length is refitted to the surface's turns over balls of
     # this radius (m; local_motion_fit, heat_averager) before the magnitude scales it; 0: its own parameters scale

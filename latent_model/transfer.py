@@ -341,7 +341,8 @@ class Transfer:
         over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
         cfg, dev = self.model.cfg.motion, self.device
         fits = mesh.cache("motion_fits", dev, dict)
-        key = (direction.cpu().numpy().tobytes(), float(r), int(k), cfg.refit_radius, cfg.rigid_parts, cfg.repivot)
+        key = (direction.cpu().numpy().tobytes(), float(r), int(k), cfg.refit_radius, cfg.rigid_parts, cfg.repivot,
+               cfg.rigid_prior, cfg.rigid_anchor)
         if key not in fits:
             v = torch.from_numpy(mesh.vertices)[None].to(dev)
             moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k))
@@ -357,7 +358,9 @@ class Transfer:
         (`part_rigidifier`) unless the config says not."""
         if not self.model.cfg.motion.rigid_parts:
             return apply_motion
-        return mesh.cache("motion_rigid", self.device, lambda: part_rigidifier(mesh.surface.coords))
+        cfg = self.model.cfg.motion
+        return mesh.cache(f"motion_rigid_{cfg.rigid_prior:g}_{cfg.rigid_anchor:g}", self.device,
+                          lambda: part_rigidifier(mesh.surface.coords, prior=cfg.rigid_prior, anchor=cfg.rigid_anchor))
 
     def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,
                 magnitude: float = 1.0) -> RigidMotion:
