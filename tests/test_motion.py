@@ -193,6 +193,35 @@ def test_rigid_parts_move_hands_and_feet_as_one_and_leave_the_rest(stances):
     assert torch.equal(rigidify(x, zero), x)
 
 
+def test_a_rigid_hand_follows_its_forearm_not_the_decoders_rotation_vectors(stances):
+    """The left arm below the elbow turns rigidly 47 degrees, but the per-vertex rotation vectors say 60 degrees about
+    another axis (translations make the positions right, as the decoder's do): with the limb as the prior
+    (`anchor`) the hand turns as the forearm does; with the rotation vectors as the prior it is pulled off."""
+    from scipy.spatial.transform import Rotation
+
+    from latent_model.nn.motion_decoder import RigidMotion, part_rigidifier
+
+    v, sf = stances["bind"]
+    x = torch.from_numpy(v)[None].float()
+    arm = np.flatnonzero(sf.coords[:, 2] < 0.25)  # hand and forearm, from the left fingertip
+    turn = Rotation.from_rotvec(np.radians(47.0) * np.array([0.0, 0.6, 0.8]))
+    pivot = v[arm][np.argmax(sf.coords[arm, 2])]
+    y = x.clone()
+    y[0, arm] = torch.from_numpy(turn.apply(v[arm] - pivot) + pivot).float()
+    wrong = torch.zeros_like(x)
+    wrong[0, arm] = torch.tensor(np.radians(60.0) * np.array([1.0, 0.0, 0.0])).float()
+    m = RigidMotion(wrong, x.clone(), y - x)  # pivots at the vertices: the positions are y whatever w says
+    hand = np.flatnonzero(sf.coords[:, 2] < 0.07)
+
+    def hand_error(out: torch.Tensor) -> float:  # degrees between the hand's fitted turn and the forearm's
+        a, b = v[hand] - v[hand].mean(0), out[0, hand].numpy() - out[0, hand].numpy().mean(0)
+        got = Rotation.align_vectors(b, a)[0]
+        return float(np.degrees((got * turn.inv()).magnitude()))
+
+    assert hand_error(part_rigidifier(sf.coords, anchor=0.06)(x, m)) < 0.1
+    assert hand_error(part_rigidifier(sf.coords, anchor=0.0)(x, m)) > 3.0
+
+
 def test_transfer_moves_hands_and_feet_rigidly_unless_the_config_says_not(tiny_motion, tiny_corpus):
     """rigid_parts changes the prediction in the hands and feet only (through the one Transfer path), and
     magnitude 0 is still the source exactly."""
