@@ -31,7 +31,7 @@ def main() -> None:
                     help="hands and feet as rigid parts: as the checkpoint's config says, or forced on / off")
     ap.add_argument("--repivot", type=float, help="absorb_translation's damping at inference (default: the config's)")
     ap.add_argument("--motion", action="append", default=[], metavar="KEY=VALUE",
-                    help="any other MotionDecoderConfig inference option, e.g. refit_parts=false, rigid_anchor=0")
+                    help="any other MotionDecoderConfig inference option, e.g. rigid_anchor=0, rigid_prior=3")
     ap.add_argument("-o", "--output", default="closeup.png")
     args = ap.parse_args()
     import matplotlib
