@@ -61,11 +61,17 @@ class PoseFieldsConfig:
 
 @dataclass(frozen=True)
 class MotionDecoderConfig:
-    """Decoder v2 (nn/motion_decoder.py), trained after the network in Phase B (train/motion.py); it predicts
-    neutral_to_pose (the corpus-v3 model, trained before it existed, has none)."""
+    """Decoder v2 (nn/motion_decoder.py), trained after the network in Phase B (train/motion.py); it predicts the
+    pair kinds whose target is the source moved by the skeleton (the corpus-v3 model, trained before it existed,
+    has none)."""
 
     enabled: bool = True  # build and train it; Transfer then predicts `kinds` with it
-    kinds: tuple[PairKind, ...] = ("neutral_to_pose",)  # pair kinds it predicts at inference
+    # pair kinds it predicts at inference: the skeletal motions (the correctives, skinning -> +blendshape, are the
+    # network's: millimetre shape changes, not a rigid motion)
+    kinds: tuple[PairKind, ...] = ("neutral_to_pose", "blendshape_to_skinning_plus_blendshape", "source_to_combo")
+    # pair kinds it has training pairs of; a kind it predicts but has none of is read as the first of these (a
+    # blendshape source or a posed one moved by the skeleton makes the same motion as a neutral does)
+    trained_kinds: tuple[PairKind, ...] = ("neutral_to_pose",)
     hidden: int = 128  # per-vertex MLP width
     cond: int = 256  # width of the condition (mu_src, delta direction, pair kind)
     layers: int = 3  # hidden layers, each FiLM-modulated by the condition
@@ -98,8 +104,14 @@ class MotionDecoderConfig:
     delta_noise: float = 0.0  # std of the noise on them (or on the unit-RMS direction) in training
 
     def __post_init__(self) -> None:
-        for k in self.kinds:
+        for k in (*self.kinds, *self.trained_kinds):
             check_pair_kind(k)
+        if not self.trained_kinds:
+            raise ValueError("MotionDecoderConfig.trained_kinds must name at least one pair kind")
+
+    def reads_as(self, kind: PairKind) -> PairKind:
+        """The pair kind the decoder is conditioned on for a pair of `kind` (itself when trained on it)."""
+        return kind if kind in self.trained_kinds else self.trained_kinds[0]
 
 
 @dataclass(frozen=True)

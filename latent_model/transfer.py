@@ -307,7 +307,7 @@ class Transfer:
         gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
-        conditions = [self._condition(x, 1.0, kind) for x in deltas]
+        conditions = [self._condition(x, 1.0, self.model.cfg.motion.reads_as(kind)) for x in deltas]
         if self.model.cfg.motion.refit_radius <= 0:  # the decoder's own parameters scaled (the model before refits)
             motions = [self._motion(mesh, *c, magnitude) for c in conditions]
             v = torch.from_numpy(mesh.vertices)[None].to(self.device)

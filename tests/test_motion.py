@@ -343,3 +343,42 @@ def test_transfer_scales_the_surfaces_motion_continuously_and_leaves_magnitude_1
     for m in (0.99, 1.01):
         assert np.linalg.norm(at[m] - at[1.0], axis=1).max() < 0.05 * step
     assert np.linalg.norm(at[2.0] - own2, axis=1).max() > 1e-4
+
+
+def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the_kind_it_learnt(tiny_motion,
+                                                                                                 tiny_corpus):
+    """blendshape -> skinning+blendshape and source -> combo are predicted by the motion decoder from their own
+    delta, on their own (blendshape or posed) source, conditioned as the kind it was trained on; the correctives
+    stay with the network. Routing the kind away gives the network's (another) prediction."""
+    import dataclasses
+
+    from latent_model.corpus.pairs import pair_states
+
+    t, _ = tiny_motion
+    c = tiny_corpus
+    cfg = t.model.cfg
+    assert cfg.motion.reads_as("source_to_combo") == "neutral_to_pose" == cfg.motion.trained_kinds[0]
+    assert t.predicts_with("skinning_to_skinning_plus_blendshape") == "network"
+    i = c.split_indices("test")[0]
+    combo = next(p for p in t.bank.poses("source_to_combo"))
+    for kind, key in (("blendshape_to_skinning_plus_blendshape", "elbowBentLf"), ("source_to_combo", combo)):
+        assert t.predicts_with(kind) == "motion"
+        pose, comp = key.split("<") if "<" in key else (key, None)
+        (sp, sv), _ = pair_states(kind, pose, comp)
+        mesh = t.prepare(c.vertices(c.state(i, sp, sv)), c.faces, sdf_faces=c.body_faces)
+        out = t.predict_detail(mesh, key, "mean", kind=kind)
+        assert out.predictor == "motion"
+        # the same delta given as an example (read as neutral_to_pose) is the same prediction
+        d = t.bank.mean_delta(kind, key)
+        assert np.allclose(t.predict(mesh, None, delta=d), out.raw, atol=1e-6)
+        assert np.linalg.norm(out.raw - mesh.vertices, axis=1).max() > 1e-3
+        # on another source (the neutral) the same delta moves other positions: it reads the source's geometry
+        other = t.prepare(c.vertices(c.state(i, None, "neutral")), c.faces, sdf_faces=c.body_faces, mu=mesh.mu)
+        if sp is not None and sv != "blendshape":
+            assert not np.allclose(t.predict(other, key, "mean", kind=kind) - other.vertices,
+                                   out.raw - mesh.vertices, atol=1e-4)
+        try:
+            t.model.cfg = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, kinds=("neutral_to_pose",)))
+            assert t.predict_detail(mesh, key, "mean", kind=kind).predictor == "network"
+        finally:
+            t.model.cfg = cfg

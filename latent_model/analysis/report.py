@@ -148,6 +148,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     from latent_model.corpus.store import Corpus
     from latent_model.checkpoint import load_checkpoint
     from latent_model.transfer import Transfer
+    from latent_model.types import PAIR_KINDS
 
     def say(msg: str) -> None:
         if progress:
@@ -185,6 +186,8 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
     tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress)
+    names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields"}
+    tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
     timings["transfer_s"] = time.perf_counter() - t
     t = time.perf_counter()
     persons = {corpus.identities[i].person_id for i in ids}
@@ -342,7 +345,8 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
             rows.append([g] + [f"{m[f'{base}.{s}.err_mm']:.2f} / {m[f'{base}.{s}.explained']:.2f} / {m[f'{base}.{s}.leak_mm']:.2f}"
                                for s in strategies])
         if rows:
-            out += [f"### {kind} (per pose group: err mm / explained / leak mm)", "",
+            by = m.get(f"transfer.{kind}.predictor")
+            out += [f"### {kind} ({f'predicted by the {by}; ' if by else ''}per pose group: err mm / explained / leak mm)", "",
                     _table(["group"] + list(strategies), rows), ""]
     rows = []
     for pose in singles + [p for p in corpus.poses if p not in singles]:

@@ -50,9 +50,11 @@ def nearest_training_identity(corpus: Corpus, train: list[int]) -> Callable[[int
 
 
 def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str, ...] = PAIR_KINDS,
-                      example_identity: int | None = None, progress: bool = True) -> tuple[dict, dict]:
+                      example_identity: int | None = None, progress: bool = True,
+                      poses: tuple[str, ...] | None = None) -> tuple[dict, dict]:
     """(flat metrics `transfer.<kind>.<pose>.<strategy>.<metric>` + group means, examples for
-    figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity)."""
+    figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity).
+    `poses`: the target poses to evaluate (default: every corpus pose)."""
     from tqdm import tqdm
 
     from latent_model.encoding import encode_sample_sets
@@ -71,7 +73,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     examples: dict = {}
     example_identity = ids[0] if example_identity is None else example_identity
     pairs_by_key: dict[tuple[str, str], list[Pair]] = {}
-    for p in enumerate_pairs(ids, tuple(corpus.poses), kinds):
+    for p in enumerate_pairs(ids, tuple(corpus.poses) if poses is None else tuple(poses), kinds):
         pairs_by_key.setdefault((p.kind, p.bank_key), []).append(p)
 
     # every source and target latent in one batched pass (one encoder call per state was a third of the time)
