@@ -66,11 +66,12 @@ class MotionDecoderConfig:
     has none)."""
 
     enabled: bool = True  # build and train it; Transfer then predicts `kinds` with it
-    # pair kinds it predicts at inference: the skeletal motions (the correctives, skinning -> +blendshape, are the
-    # network's: millimetre shape changes, not a rigid motion)
-    kinds: tuple[PairKind, ...] = ("neutral_to_pose", "blendshape_to_skinning_plus_blendshape", "source_to_combo")
+    # pair kinds it predicts at inference (the others: the network). The correctives (skinning -> +blendshape) are
+    # millimetre shape changes, not a motion; source -> combo, read as neutral_to_pose, moved the whole body of
+    # some posed sources (hipFlexLf+kneeBentLf: 158 mm leak, bench/pair_kinds.py): it needs its own training pairs
+    kinds: tuple[PairKind, ...] = ("neutral_to_pose", "blendshape_to_skinning_plus_blendshape")
     # pair kinds it has training pairs of; a kind it predicts but has none of is read as the first of these (a
-    # blendshape source or a posed one moved by the skeleton makes the same motion as a neutral does)
+    # blendshape source moved by the skeleton makes the motion a neutral does)
     trained_kinds: tuple[PairKind, ...] = ("neutral_to_pose",)
     hidden: int = 128  # per-vertex MLP width
     cond: int = 256  # width of the condition (mu_src, delta direction, pair kind)

@@ -347,9 +347,10 @@ def test_transfer_scales_the_surfaces_motion_continuously_and_leaves_magnitude_1
 
 def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the_kind_it_learnt(tiny_motion,
                                                                                                  tiny_corpus):
-    """blendshape -> skinning+blendshape and source -> combo are predicted by the motion decoder from their own
-    delta, on their own (blendshape or posed) source, conditioned as the kind it was trained on; the correctives
-    stay with the network. Routing the kind away gives the network's (another) prediction."""
+    """blendshape -> skinning+blendshape is predicted by the motion decoder from its own delta, on its own
+    (blendshape) source, conditioned as the kind it was trained on; the correctives stay with the network, and so
+    does source -> combo unless the config routes it (then read on its posed source). Routing a kind away gives
+    the network's (another) prediction."""
     import dataclasses
 
     from latent_model.corpus.pairs import pair_states
@@ -359,9 +360,12 @@ def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the
     cfg = t.model.cfg
     assert cfg.motion.reads_as("source_to_combo") == "neutral_to_pose" == cfg.motion.trained_kinds[0]
     assert t.predicts_with("skinning_to_skinning_plus_blendshape") == "network"
+    assert t.predicts_with("source_to_combo") == "network"
     i = c.split_indices("test")[0]
     combo = next(p for p in t.bank.poses("source_to_combo"))
+    routed = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, kinds=(*cfg.motion.kinds, "source_to_combo")))
     for kind, key in (("blendshape_to_skinning_plus_blendshape", "elbowBentLf"), ("source_to_combo", combo)):
+        t.model.cfg = routed if kind == "source_to_combo" else cfg
         assert t.predicts_with(kind) == "motion"
         pose, comp = key.split("<") if "<" in key else (key, None)
         (sp, sv), _ = pair_states(kind, pose, comp)
@@ -382,3 +386,4 @@ def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the
             assert t.predict_detail(mesh, key, "mean", kind=kind).predictor == "network"
         finally:
             t.model.cfg = cfg
+    assert t.predicts_with("source_to_combo") == "network"
