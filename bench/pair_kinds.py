@@ -17,16 +17,6 @@ import dataclasses
 import time
 
 
-def body_poses(corpus) -> tuple[str, ...]:
-    from latent_model.corpus.poses import get_pose
-
-    def body(name: str) -> bool:
-        p = get_pose(name)
-        return all(get_pose(c).group == "body" for c in p.components) if p.is_combo else p.group == "body"
-
-    return tuple(p for p in corpus.poses if body(p))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint")
@@ -44,6 +34,7 @@ def main() -> None:
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.store import Corpus
     from latent_model.shipped import ShippedPaths
+    from latent_model.train.motion import training_poses
     from latent_model.transfer import Transfer
 
     torch.set_num_threads(2)
@@ -52,7 +43,7 @@ def main() -> None:
     c = Corpus(args.corpus or default_corpus_dir("standard"))
     ids = c.split_indices(args.split, rest=None if args.rest == "all" else args.rest)
     kinds = tuple(args.kinds.split(","))
-    poses = body_poses(c) if args.poses == "body" else None
+    poses = training_poses(c, "body") if args.poses == "body" else None
     base = t.model.cfg
     for decoder in args.decoders.split(","):
         if decoder not in ("motion", "network"):
