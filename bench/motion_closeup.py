@@ -23,6 +23,7 @@ def main() -> None:
     ap.add_argument("--character", type=int, default=0, help="which character of the split and rest")
     ap.add_argument("--pose", default="elbowBentLf")
     ap.add_argument("--pose-b", default="kneeBentLf")
+    ap.add_argument("--kind", default="neutral_to_pose", help="the pair kind (its source: the pair's source state)")
     ap.add_argument("--strategy", default="mean_pose_delta")
     ap.add_argument("--magnitude", type=float, default=1.0)
     ap.add_argument("--truth-pose", help="the truth to compare with (default: --pose), e.g. elbowSuperBentLf at 2")
@@ -66,20 +67,27 @@ def main() -> None:
     c = Corpus(args.corpus or default_corpus_dir("standard"))
     chars = Characters(t, c)
     i = c.split_indices(args.split, rest=args.rest)[args.character]
-    mesh = chars.neutral(i)
+    from latent_model.corpus.pairs import pair_states
+
+    (src_pose, src_variant), (_, target_variant) = pair_states(args.kind, args.pose)
+    mesh = chars.neutral(i) if src_pose is None else t.prepare(c.vertices(c.state(i, src_pose, src_variant)), c.faces,
+                                                                sdf_faces=c.body_faces)
     v = mesh.vertices
-    out = t.predict_detail(mesh, args.pose, args.strategy, magnitude=args.magnitude)
-    pred, truth = out.vertices, chars.truth(i, args.truth_pose or args.pose)
+    out = t.predict_detail(mesh, args.pose, args.strategy, magnitude=args.magnitude, kind=args.kind)
+    pred = out.vertices
+    truth = c.vertices(c.state(i, args.truth_pose or args.pose, target_variant))
     e = mesh_errors(pred, truth, v)
     strain = edge_strain(pred, truth, v, c.faces)
     rigid = (", rigid hands and feet" if motion.rigid_parts else "") + (f", repivot {motion.repivot:g}" if motion.repivot else "")
-    name = f"{c.identities[i].id} ({args.rest}), {args.pose} x{args.magnitude:g} [{out.label}, {out.predictor}{rigid}]"
+    kind = "" if args.kind == "neutral_to_pose" else f" {args.kind}"
+    name = f"{c.identities[i].id} ({args.rest}),{kind} {args.pose} x{args.magnitude:g} [{out.label}, {out.predictor}{rigid}]"
     print(f"{name} vs {args.truth_pose or args.pose}: explained {e['explained']:.3f}, leak {e['leak_mm']:.2f} mm, "
           f"moving-region error {e['err_moving_mm']:.1f} mm, edge strain {strain:.1f} % "
           f"(the source's: {edge_strain(v, truth, v, c.faces):.1f} %)")
-    sweep = [t.predict(mesh, args.pose, args.strategy, pose_b=args.pose_b, blend=float(b)) for b in np.linspace(0, 1, 21)]
+    sweep = [t.predict(mesh, args.pose, args.strategy, kind=args.kind, pose_b=args.pose_b, blend=float(b))
+             for b in np.linspace(0, 1, 21)]
     moves = np.array([np.linalg.norm(b - a, axis=1).max() for a, b in zip(sweep, sweep[1:])]) * 1000
-    fa, fb = (region_fraction(sweep[10], chars.truth(i, p), v) for p in (args.pose, args.pose_b))
+    fa, fb = (region_fraction(sweep[10], c.vertices(c.state(i, p, target_variant)), v) for p in (args.pose, args.pose_b))
     print(f"blend {args.pose} -> {args.pose_b}: largest step {moves.max():.1f} mm = {moves.max() / np.median(moves):.2f}x "
           f"the median step; at 0.5 the regions move {fa:.2f} and {fb:.2f} of their truth")
     right, up = (np.asarray(a, dtype=np.float64) for a in VIEWS[args.view])
