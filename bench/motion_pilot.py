@@ -31,9 +31,12 @@ def main() -> None:
     ap.add_argument("--mu-dims", type=int, default=8, help="principal components of mu_src read (0: none)")
     ap.add_argument("--mu-noise", type=float, default=1.0)
     ap.add_argument("--no-local", action="store_true", help="no normal / medial-offset inputs")
+    ap.add_argument("--limb-direction", action="store_true", help="also the limb's axis in body axes as an input")
     ap.add_argument("--edge", type=float, default=None, help="weight of the neighbour term (default: the config's)")
     ap.add_argument("--smooth", default="0", help="comma-separated smoothing iterations of the motion at inference, "
                     "each reported in the final table")
+    ap.add_argument("--mean-prob", type=float, default=None, help="probability of training on the pose's mean delta")
+    ap.add_argument("--world-penalty", type=float, default=0.0, help="weight of the world-axis outputs' size")
     ap.add_argument("--translation", type=float, default=0.0, help="weight of the translation length in the loss")
     ap.add_argument("--delta-dims", type=int, default=0, help="principal components of the delta direction read (0: all)")
     ap.add_argument("--delta-noise", type=float, default=0.0)
@@ -87,7 +90,8 @@ def main() -> None:
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
                             mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local,
-                            delta_dims=args.delta_dims, delta_noise=args.delta_noise)
+                            delta_dims=args.delta_dims, delta_noise=args.delta_noise,
+                            limb_direction=args.limb_direction)
     decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train])).float())
     decoder.set_delta_basis(torch.from_numpy(table.directions(train, poses)).float())
 
@@ -102,7 +106,8 @@ def main() -> None:
                 out.setdefault(group, []).append((e["explained"], e["leak_mm"]))
         return {g: f"{np.mean([x[0] for x in r]):.3f} / {np.mean([x[1] for x in r]):.2f} mm" for g, r in out.items()}
 
-    extra = {"translation": args.translation, **({} if args.edge is None else {"edge": args.edge})}
+    extra = {"translation": args.translation, "world_penalty": args.world_penalty, **({} if args.edge is None else {"edge": args.edge}),
+             **({} if args.mean_prob is None else {"mean_prob": args.mean_prob})}
     cfg = MotionDecoderConfig(steps=args.steps, batch=args.batch, vertices=args.vertices, **extra)
     t = time.perf_counter()
     if args.load:

@@ -80,6 +80,7 @@ class MotionDecoderConfig:
     mu_dims: int = 8  # mu_src is read through this many whitened principal components (0: not read)
     mu_noise: float = 1.0  # std of the noise on them in training (in their std units)
     local_inputs: bool = False  # also read each vertex's normal and medial offset (they made neighbours disagree)
+    limb_direction: bool = False  # also read the limb's axis in body axes (where the limb points in this rest)
     smooth: int = 40  # at inference, rounds of averaging the per-vertex motion over surface neighbours
     rigid_parts: bool = True  # at inference, hands and feet move as rigid parts (nn/motion_decoder.RIGID_PARTS)
     # a rigid part's turn is pulled (this fraction of its spread) to the turn of the limb carrying it, over the band
@@ -101,6 +102,9 @@ class MotionDecoderConfig:
     # weight of the translation's mean length (mm) in the loss: at r = 1 a turn about the vertex's own axis plus a
     # shift fits as well as a turn about the joint, but only the latter doubles right when the delta doubles
     translation: float = 0.0
+    # weight of the world-axis outputs' size (mm: a turn at a 10 cm lever, a shift) in the loss: a limb's turn
+    # learnt in world axes is wrong in any rest where the limb points elsewhere; the limb frame's turns with it
+    world_penalty: float = 0.0
     delta_dims: int = 0  # the delta's direction is read through this many whitened principal components (0: in full)
     delta_noise: float = 0.0  # std of the noise on them (or on the unit-RMS direction) in training
 

@@ -97,6 +97,57 @@ def test_mixed_motions_weigh_each_motion_and_leave_a_zero_weight_out():
     assert torch.equal(apply_motion(v, none), v)
 
 
+def test_the_limb_direction_input_reads_where_the_limb_points():
+    """With `limb_direction`, the decoder also reads the limb axis in body axes: the same limb turned rigidly no
+    longer gives just the turned prediction (it may move differently where the limb points elsewhere), and
+    without it, it does (the next test)."""
+    from latent_model.nn.motion_decoder import MotionDecoder, axis_angle_to_matrix
+
+    torch.manual_seed(0)
+    dec = MotionDecoder(16, 4, hidden=32, cond=32, limb_direction=True).eval()
+    with torch.no_grad():
+        for prm in dec.parameters():
+            prm.add_(torch.randn_like(prm) * 0.05)
+    x = _inputs()
+    R = axis_angle_to_matrix(torch.tensor([0.0, 0.7, 0.2]))
+    turn = lambda a: a @ R.T  # noqa: E731
+    turned = {**x, "v_src": turn(x["v_src"]), "normals": turn(x["normals"]), "medial": turn(x["medial"]),
+              "frames": torch.einsum("ij,bnjk->bnik", R, x["frames"])}
+    with torch.no_grad():
+        assert (dec(**turned) - turn(dec(**x))).norm(dim=-1).max() > 1e-3
+        assert torch.equal(dec(**{**x, "r": torch.tensor([0.0])}), x["v_src"])
+
+
+def test_the_world_penalty_moves_the_motion_into_the_limb_frame(tiny_corpus, tmp_path):
+    """`world_penalty` > 0 makes the world-axis outputs smaller than training without it (same seeds)."""
+    import dataclasses
+
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+    from latent_model.train.motion import CharacterCache, DeltaTable, _batch_tensors, pair_inputs, train_motion_phase
+
+    sizes = {}
+    for weight in (0.0, 2.0):
+        p = preset("tiny")
+        motion = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=60, batch=2,
+                                     vertices=128, lr=3e-3, world_penalty=weight)
+        p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=motion))
+        torch.manual_seed(0)
+        model = LatentReRig(p.model).eval()
+        train_motion_phase(model, p, tiny_corpus, tmp_path / "run", torch.device("cpu"), progress=False)
+        train = tiny_corpus.split_indices("train")
+        pose = next(q for q in tiny_corpus.poses if q.startswith("elbow"))
+        table = DeltaTable(model, tiny_corpus, train[:1], train[:1], (pose,), torch.device("cpu"))
+        b = _batch_tensors([pair_inputs(CharacterCache(tiny_corpus, tmp_path / "run" / "surface"), table, train[0],
+                                        pose, table.delta[(train[0], pose)])])
+        dec = model.motion_decoder
+        with torch.no_grad():
+            c = dec.condition(b["mu_src"], b["delta_dir"], b["kind"])
+            out = dec.motion(b["coords"], b["frames"], b["normals"], b["medial"] - b["v_src"], c)
+        sizes[weight] = out[..., 9:15].norm(dim=-1).mean().item()
+    assert sizes[2.0] < 0.5 * sizes[0.0], sizes
+
+
 def test_a_motion_in_the_limb_frame_turns_with_the_limb():
     """The same decoder and condition on a limb and on the limb turned rigidly (positions, normals,
     medial points and frames rotated together, intrinsic coordinates unchanged) gives the turned

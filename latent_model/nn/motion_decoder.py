@@ -68,7 +68,7 @@ class MotionDecoder(nn.Module):
 
     def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
                  world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0, local_inputs: bool = True,
-                 delta_dims: int = 0, delta_noise: float = 0.0) -> None:
+                 delta_dims: int = 0, delta_noise: float = 0.0, limb_direction: bool = False) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
@@ -88,7 +88,10 @@ class MotionDecoder(nn.Module):
         # local_inputs: also the normal and the medial offset (they differ between neighbours: a part's
         # vertices then get different motions); without, the motion is a smooth function of where on the body
         self.local_inputs = local_inputs
-        n_in = 6 + 12 * N_COORD_FREQ + (6 if local_inputs else 0)
+        # limb_direction: also the limb's axis t in body axes (smoothed along the surface, so neighbours agree):
+        # where the limb points in this rest, read from the geometry rather than from mu_src alone
+        self.limb_direction = limb_direction
+        n_in = 6 + 12 * N_COORD_FREQ + (6 if local_inputs else 0) + (3 if limb_direction else 0)
         self.inp = nn.Linear(n_in, hidden)
         self.hidden = nn.ModuleList(nn.Linear(hidden, hidden) for _ in range(layers))
         self.film = nn.Linear(cond, 2 * hidden * (layers + 1))
@@ -141,6 +144,8 @@ class MotionDecoder(nn.Module):
         x = coord_features(coords)
         if self.local_inputs:
             x = torch.cat([x, to_local(normals), to_local(medial_offset) * 10.0], dim=-1)
+        if self.limb_direction:
+            x = torch.cat([x, frames[..., :, 0]], dim=-1)
         film = self.film(c).reshape(c.shape[0], 1, self.n_layers + 1, 2, -1)
         h = self.inp(x)
         for k, layer in enumerate([None, *self.hidden]):
@@ -166,13 +171,17 @@ class MotionDecoder(nn.Module):
     def rigid_motion(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                      medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
                      kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None,
-                     repivot: float = 0.0, r_ref: torch.Tensor | None = None) -> "RigidMotion":
+                     repivot: float = 0.0, r_ref: torch.Tensor | None = None,
+                     outputs: torch.Tensor | None = None) -> "RigidMotion":
         """The per-vertex motion in world axes (arguments as `forward`), before it acts. Rotation and translation
         are formed per unit r, smoothed (linear, so it commutes with r), optionally re-pivoted at r_ref (the
-        motion there is unchanged), then scaled by r."""
-        if c is None:
-            c = self.condition(mu_src, delta_dir, kind)
-        m = self.motion(coords, frames, normals, medial - v_src, c)
+        motion there is unchanged), then scaled by r. `outputs`: `motion(...)` already computed (training
+        penalises parts of it)."""
+        if outputs is None:
+            if c is None:
+                c = self.condition(mu_src, delta_dir, kind)
+            outputs = self.motion(coords, frames, normals, medial - v_src, c)
+        m = outputs
         to_world = lambda x: torch.einsum("bnij,bnj->bni", frames, x)  # noqa: E731  F x
         r = r.reshape(-1, 1, 1)
         w, o, u = to_world(m[..., 0:3]), to_world(m[..., 3:6]) * 0.1, to_world(m[..., 6:9]) * 0.1

@@ -155,13 +155,20 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
             rows.append(pair_inputs(cache, table, i, p, delta, idx))
             targets.append(tgt[idx])
         b = _batch_tensors(rows)
+        c = decoder.condition(b["mu_src"], b["delta_dir"], b["kind"])
+        out = decoder.motion(b["coords"], b["frames"], b["normals"], b["medial"] - b["v_src"], c)
         motion = decoder.rigid_motion(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
-                                      b["delta_dir"], b["r"], b["kind"])
+                                      b["delta_dir"], b["r"], b["kind"], outputs=out)
         pred = apply_motion(b["v_src"], motion)
         tgt = torch.from_numpy(np.stack(targets)).float()
         loss = (pred - tgt).norm(dim=-1).mean() * 1000  # mm
         if cfg.translation:
             loss = loss + cfg.translation * motion.u.norm(dim=-1).mean() * 1000
+        if cfg.world_penalty and decoder.world:
+            # the world-axis parts only where the limb frame cannot say it (the torso): a limb's turn in world axes
+            # is right in the rests it was learnt in and wrong in any other. In mm: a turn at a 10 cm lever, a shift
+            world_mm = (out[..., 9:12].norm(dim=-1) + out[..., 12:15].norm(dim=-1)) * 0.1 * 1000
+            loss = loss + cfg.world_penalty * world_mm.mean()
         if reach is not None:
             # relative position of neighbours: a rigid part stays rigid (per-vertex errors alone let it crumple)
             half, n = cfg.vertices // 2, cfg.vertices
