@@ -88,6 +88,20 @@ def test_metrics_keys_are_stable_and_finite(report, tiny_corpus):
     assert 0 < m["latent.identity_distance.n"] <= 190
 
 
+def test_pose_consistency_is_also_reported_within_each_rest(report, tiny_corpus):
+    """The paper's characters share one rest: each pose's cosine is also given among the held-out characters of
+    each rest configuration, and the report's table shows it beside the one across rests."""
+    out, m = report
+    test = tiny_corpus.split_indices("test")
+    rests = sorted({tiny_corpus.identities[i].rest for i in test})
+    assert len(rests) > 1  # the tiny corpus has a held-out rest: bind and tpose
+    for pose in tiny_corpus.poses:
+        for rest in rests:
+            v = m[f"latent.pose_consistency.{pose}.rest.{rest}.cos_mean"]
+            assert -1.0 <= v <= 1.0
+    assert "model cos within a rest" in (out / "report.md").read_text()
+
+
 def test_latent_metrics_are_deterministic(report, model_files, tiny_corpus, tmp_path):
     from latent_model.analysis.report import evaluate
 
