@@ -97,22 +97,29 @@ def test_mixed_motions_weigh_each_motion_and_leave_a_zero_weight_out():
     assert torch.equal(apply_motion(v, none), v)
 
 
-def test_the_limb_direction_input_reads_where_the_limb_points():
-    """With `limb_direction`, the decoder also reads the limb axis in body axes: the same limb turned rigidly no
-    longer gives just the turned prediction (it may move differently where the limb points elsewhere), and
-    without it, it does (the next test)."""
+def _decoder_and_turned_limb(**options):
+    """A decoder with random moderate weights, inputs x, the same inputs turned rigidly (positions, normals,
+    medial points and frames; intrinsic coordinates unchanged) and the turn: (dec, x, turned, turn)."""
     from latent_model.nn.motion_decoder import MotionDecoder, axis_angle_to_matrix
 
     torch.manual_seed(0)
-    dec = MotionDecoder(16, 4, hidden=32, cond=32, limb_direction=True).eval()
+    dec = MotionDecoder(16, 4, hidden=32, cond=32, **options).eval()
     with torch.no_grad():
         for prm in dec.parameters():
-            prm.add_(torch.randn_like(prm) * 0.05)
+            prm.add_(torch.randn_like(prm) * 0.05)  # moderate motions (float32 Rodrigues of 1000 rad is not)
     x = _inputs()
     R = axis_angle_to_matrix(torch.tensor([0.0, 0.7, 0.2]))
     turn = lambda a: a @ R.T  # noqa: E731
     turned = {**x, "v_src": turn(x["v_src"]), "normals": turn(x["normals"]), "medial": turn(x["medial"]),
               "frames": torch.einsum("ij,bnjk->bnik", R, x["frames"])}
+    return dec, x, turned, turn
+
+
+def test_the_limb_direction_input_reads_where_the_limb_points():
+    """With `limb_direction`, the decoder also reads the limb axis in body axes: the same limb turned rigidly no
+    longer gives just the turned prediction (it may move differently where the limb points elsewhere), and
+    without it, it does (the next test)."""
+    dec, x, turned, turn = _decoder_and_turned_limb(limb_direction=True)
     with torch.no_grad():
         assert (dec(**turned) - turn(dec(**x))).norm(dim=-1).max() > 1e-3
         assert torch.equal(dec(**{**x, "r": torch.tensor([0.0])}), x["v_src"])
@@ -152,18 +159,9 @@ def test_a_motion_in_the_limb_frame_turns_with_the_limb():
     """The same decoder and condition on a limb and on the limb turned rigidly (positions, normals,
     medial points and frames rotated together, intrinsic coordinates unchanged) gives the turned
     prediction: what it learns in one rest holds in another."""
-    from latent_model.nn.motion_decoder import MotionDecoder, axis_angle_to_matrix
+    from latent_model.nn.motion_decoder import axis_angle_to_matrix
 
-    torch.manual_seed(0)
-    dec = MotionDecoder(16, 4, hidden=32, cond=32).eval()
-    with torch.no_grad():
-        for prm in dec.parameters():
-            prm.add_(torch.randn_like(prm) * 0.05)  # moderate motions (float32 Rodrigues of 1000 rad is not)
-    x = _inputs()
-    R = axis_angle_to_matrix(torch.tensor([0.0, 0.7, 0.2]))
-    turn = lambda a: a @ R.T  # noqa: E731
-    turned = {**x, "v_src": turn(x["v_src"]), "normals": turn(x["normals"]), "medial": turn(x["medial"]),
-              "frames": torch.einsum("ij,bnjk->bnik", R, x["frames"])}
+    dec, x, turned, turn = _decoder_and_turned_limb()
     with torch.no_grad():
         assert torch.allclose(dec(**turned), turn(dec(**x)), rtol=1e-4, atol=1e-4)
     from scipy.spatial.transform import Rotation
