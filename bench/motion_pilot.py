@@ -46,6 +46,8 @@ def main() -> None:
                     "(0: off), each reported")
     ap.add_argument("--bank", help="the face and finger poses' mean deltas from this bank (default: the shipped; "
                     "give the checkpoint's own)")
+    ap.add_argument("--extra-rests", type=int, default=0, help="each training person also in this many random "
+                    "rests within the training rests' ranges (train/rest_augment.py)")
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
@@ -88,12 +90,20 @@ def main() -> None:
         cache.get(i)
     print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
+    extra = None
+    if args.extra_rests and not args.load:
+        from latent_model.train.rest_augment import extra_characters
+
+        extra = extra_characters(model, c, train, poses, args.extra_rests, seed=0, device=torch.device("cpu"))
+        cache.add(extra)
+        table.add(extra)
+    fitted = train + (extra.ids if extra else [])
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
                             mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local,
                             delta_dims=args.delta_dims, delta_noise=args.delta_noise,
                             limb_direction=args.limb_direction)
-    decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train])).float())
-    decoder.set_delta_basis(torch.from_numpy(table.directions(train, poses)).float())
+    decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in fitted])).float())
+    decoder.set_delta_basis(torch.from_numpy(table.directions(fitted, poses)).float())
 
     def validate(dec) -> dict:
         out: dict[str, list] = {}
@@ -114,7 +124,7 @@ def main() -> None:
         decoder.load_state_dict(torch.load(args.load))
     else:
         train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
-                             validate_every=max(args.steps // 3, 1))
+                             validate_every=max(args.steps // 3, 1), extra=extra)
         print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
     n_v = len(cache.get(val[0])[0])
     rigidifiers: dict[int, object] = {}

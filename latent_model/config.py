@@ -97,6 +97,9 @@ class MotionDecoderConfig:
     vertices: int = 1024  # vertices per pair per step (half where the pair moves the surface)
     lr: float = 1e-3  # learning rate (cosine decay to 5 %)
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
+    # each training person also stands in this many random rests drawn within the training rests' angle ranges
+    # (train/rest_augment.py): six fixed rests taught the decoder those six, and unseen rests lost motion
+    extra_rests: int = 0
     edge: float = 0.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
     edge_rings: int = 3  # a vertex's partner in that term is within this many edges
     # weight of the translation's mean length (mm) in the loss: at r = 1 a turn about the vertex's own axis plus a
@@ -225,8 +228,12 @@ class Preset:
         model = _from_dict(ModelConfig, d["model"])
         if "motion" not in d["model"]:  # stored before decoder v2 existed: the model has none
             model = dataclasses.replace(model, motion=MotionDecoderConfig(enabled=False))
-        elif "delta_dims" not in d["model"]["motion"]:  # stored before the direction read-out: it read it in full
-            model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, delta_dims=0))
+        else:
+            stored = d["model"]["motion"]
+            if "delta_dims" not in stored:  # stored before the direction read-out: it read it in full
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, delta_dims=0))
+            if "extra_rests" not in stored:  # stored before the drawn rests: trained on the corpus's alone
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_rests=0))
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), model,
                       _from_dict(TrainConfig, d["train"]), _from_dict(LossWeights, d["loss"]))
 

@@ -27,7 +27,7 @@ from latent_model.corpus.correctives import pose_corrective
 from latent_model.corpus.face import FaceCarrier
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.poses import PoseConfig, get_pose
-from latent_model.corpus.rests import get_rest
+from latent_model.corpus.rests import RestConfig, get_rest
 from latent_model.corpus.rig import RestShape, Rig
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.types import VARIANTS
@@ -53,7 +53,7 @@ class StateGenerator:
         self.rig = rig or Rig()
         self.carrier = FaceCarrier(self.rig)
         self._cache: tuple[str, RestShape, np.ndarray] | None = None
-        self._standing: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._standing: dict[RestConfig, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def faces(self) -> np.ndarray:
@@ -73,29 +73,31 @@ class StateGenerator:
         return pose_corrective(self.rig, shape, normals, joints, T,
                                spec.phenotypes.get("muscle", 0.5), spec.phenotypes.get("weight", 0.5))
 
-    def standing(self, spec: IdentitySpec, rest: str) -> tuple[np.ndarray, np.ndarray]:
+    def standing(self, spec: IdentitySpec, rest: str | RestConfig) -> tuple[np.ndarray, np.ndarray]:
         """(T_R (J, 4, 4), C_R (V, 3)): bones and corrective of the identity in a non-bind rest (cached)."""
         shape, _ = self.rest(spec)
-        if rest not in self._standing:
-            joints = get_rest(rest).joints
+        config = _rest_config(rest)
+        if config not in self._standing:
+            joints = config.joints
             T = self.rig.bone_transforms(shape, joints)
-            self._standing[rest] = (T, self._corrective(spec, joints, T))
-        return self._standing[rest]
+            self._standing[config] = (T, self._corrective(spec, joints, T))
+        return self._standing[config]
 
-    def neutral(self, spec: IdentitySpec, rest: str | None = None) -> np.ndarray:
-        """(V, 3) the identity standing in a rest configuration (default: its spec's; bind: its rest shape)."""
+    def neutral(self, spec: IdentitySpec, rest: str | RestConfig | None = None) -> np.ndarray:
+        """(V, 3) the identity standing in a rest configuration (a name or a `RestConfig`; default: its spec's;
+        bind: its rest shape)."""
         rest = spec.rest if rest is None else rest
-        if get_rest(rest).is_bind:
+        if _rest_config(rest).is_bind:
             return self.rest(spec)[0].vertices
         T_R, C_R = self.standing(spec, rest)
         return self.rig.lbs(self.rest(spec)[0].vertices + C_R, T_R)
 
-    def pose(self, spec: IdentitySpec, pose: PoseConfig | str, rest: str | None = None) -> PoseGeometry:
+    def pose(self, spec: IdentitySpec, pose: PoseConfig | str, rest: str | RestConfig | None = None) -> PoseGeometry:
         """A pose on top of a rest configuration (default: the spec's): the pose's rotations act in the
         rest-configured skeleton; correctives follow every rotation in effect (the rest's and the pose's)."""
         p = get_pose(pose) if isinstance(pose, str) else pose
         rest = spec.rest if rest is None else rest
-        base = get_rest(rest).joints
+        base = _rest_config(rest).joints
         shape, _ = self.rest(spec)
         rig = self.rig
         T = rig.bone_transforms(shape, p.joints, base)
@@ -121,3 +123,7 @@ class StateGenerator:
                 raise ValueError("the neutral state has no pose, and a pose needs a posed variant")
             return self.neutral(spec, rest)
         return getattr(self.pose(spec, pose, rest), variant)
+
+
+def _rest_config(rest: str | RestConfig) -> RestConfig:
+    return rest if isinstance(rest, RestConfig) else get_rest(rest)

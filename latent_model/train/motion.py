@@ -8,6 +8,7 @@ Surface features are computed once per character from its neutral mesh.
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from latent_model.encoding import encode_rows
 from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
 from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
+from latent_model.train.rest_augment import ExtraCharacters, extra_characters
 from latent_model.types import FINAL, PAIR_KINDS
 
 
@@ -49,6 +51,11 @@ class CharacterCache:
             self._f[i] = (v, self.c.normals(s), sf)
         return self._f[i]
 
+    def add(self, extra: "ExtraCharacters") -> None:
+        """Characters beyond the corpus's (train/rest_augment.py), under their own ids."""
+        for k, i in enumerate(extra.ids):
+            self._f[i] = (extra.neutral[k], extra.normals[k], extra.features[k])
+
 
 class DeltaTable:
     """Latent means of the neutral and final states of characters, their deltas and the mean per pose."""
@@ -67,6 +74,14 @@ class DeltaTable:
         self.delta = {(i, p): mu[c.row(c.state(i, p, FINAL))] - self.mu_neutral[i] for i in ids for p in poses}
         self.mean = {p: np.mean([self.delta[(i, p)] for i in train_ids], axis=0) for p in poses}
         self.scale = float(np.mean([np.linalg.norm(self.delta[(i, p)]) for i in train_ids for p in poses]))
+
+    def add(self, extra: "ExtraCharacters") -> None:
+        """The latents of characters beyond the corpus's; the per-pose means and the scale stay the corpus's
+        (transfer conditions on the bank's means, which are the corpus's)."""
+        for k, i in enumerate(extra.ids):
+            self.mu_neutral[i] = extra.mu_neutral[k]
+            for j, p in enumerate(extra.poses):
+                self.delta[(i, p)] = extra.mu_posed[k, j] - extra.mu_neutral[k]
 
     def directions(self, ids: list[int], poses: tuple[str, ...]) -> np.ndarray:
         """(len(ids) * len(poses), Z) unit directions of the characters' own deltas."""
@@ -130,12 +145,14 @@ def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repiv
 
 def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: CharacterCache, table: DeltaTable,
                          train_ids: list[int], poses: tuple[str, ...], cfg: MotionDecoderConfig, seed: int,
-                         log=print, validate=None, validate_every: int = 500) -> list[dict]:
+                         log=print, validate=None, validate_every: int = 500,
+                         extra: "ExtraCharacters | None" = None) -> list[dict]:
+    """`extra`: characters beyond the corpus (in `cache` and `table` already) whose pairs are trained on too."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     opt = torch.optim.Adam(decoder.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps, eta_min=cfg.lr * 0.05)
-    pairs = [(i, p) for i in train_ids for p in poses]
+    pairs = [(i, p) for i in train_ids for p in poses] + ([(i, p) for i in extra.ids for p in poses] if extra else [])
     reach = ring_neighbours(corpus.faces, len(cache.get(train_ids[0])[0]), cfg.edge_rings) if cfg.edge else None
     history = []
     t0 = time.perf_counter()
@@ -144,7 +161,7 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
         for k in rng.integers(len(pairs), size=cfg.batch):
             i, p = pairs[k]
             v = cache.get(i)[0]
-            tgt = corpus.vertices(corpus.state(i, p, FINAL))
+            tgt = extra.target(i, p) if extra is not None and i in extra else corpus.vertices(corpus.state(i, p, FINAL))
             moving = np.flatnonzero(np.linalg.norm(tgt - v, axis=1) > 0.002)
             half = cfg.vertices // 2
             idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
@@ -212,13 +229,21 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
     dec = model.motion_decoder
     train_ids = corpus.split_indices("train")
     poses = training_poses(corpus, m.poses)
+    log = print if progress else (lambda *_: None)
     table = DeltaTable(model, corpus, train_ids, train_ids, poses, device, mu_rows)
-    dec.delta_scale.fill_(table.scale)
-    dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in train_ids])).float())
-    dec.set_delta_basis(torch.from_numpy(table.directions(train_ids, poses)).float())
     cache = CharacterCache(corpus, Path(run_dir) / "surface")
+    extra = None
+    if m.extra_rests:
+        extra = extra_characters(model, corpus, train_ids, poses, m.extra_rests, preset.train.seed + 6000, device,
+                                 workers=min(2, os.cpu_count() or 1), log=log)
+        cache.add(extra)
+        table.add(extra)
+    fitted = train_ids + (extra.ids if extra else [])
+    dec.delta_scale.fill_(table.scale)
+    dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in fitted])).float())
+    dec.set_delta_basis(torch.from_numpy(table.directions(fitted, poses)).float())
     dec.train()
     history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, m, preset.train.seed + 5000,
-                                   log=print if progress else (lambda *_: None))
+                                   log=log, extra=extra)
     dec.eval()
     return history

@@ -1,0 +1,149 @@
+"""More rest configurations for decoder v2's training pairs: each training person of the corpus also
+stands in `per_person` random rests, drawn within the angle ranges of the training rests (corpus/rests.py).
+
+Why: the corpus stands each training person in bind and one of six fixed rests, and the decoder learnt
+those; it read unseen rests far worse (validation rests, elbowBentLf 0.56 explained; a character's own
+delta 0.19). Posing through the rig is cheap (0.04 s a mesh); each state's latent needs an SDF sampling
+(0.1 s) and the frozen encoder. The draws stay inside the training rests' ranges, so no validation or
+test rest is seen; they are seeded, so the same config gives the same characters.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from dataclasses import asdict, dataclass
+from functools import cached_property
+
+import numpy as np
+
+from latent_model.corpus.identities import IdentitySpec
+from latent_model.corpus.rests import REST_CONFIGS, TRAIN_RESTS, RestConfig
+from latent_model.surface import SurfaceFeatures
+
+ANGLES = ("arms", "elbows", "legs", "spine")
+_WORKER: dict = {}
+
+
+def rest_ranges() -> dict[str, tuple[float, float]]:
+    """(lowest, highest) of each rest angle over the training rests (bind included), degrees."""
+    rests = [REST_CONFIGS[n] for n in TRAIN_RESTS]
+    return {a: (min(getattr(r, a) for r in rests), max(getattr(r, a) for r in rests)) for a in ANGLES}
+
+
+def random_rests(rng: np.random.Generator, n: int, prefix: str = "drawn") -> list[RestConfig]:
+    """`n` rest configurations, each angle uniform in its training range (`rest_ranges`)."""
+    ranges = rest_ranges()
+    return [RestConfig(f"{prefix}{k:03d}", **{a: round(float(rng.uniform(*ranges[a])), 2) for a in ANGLES})
+            for k in range(n)]
+
+
+@dataclass
+class ExtraCharacters:
+    """Training characters beyond the corpus's, with ids `ids` (after the corpus's own indices).
+
+    neutral, normals: (A, V, 3) float32; posed: (A, P, V, 3) float32, the final state of each of `poses`;
+    mu_neutral: (A, Z); mu_posed: (A, P, Z); features: A surface features of the neutrals."""
+
+    ids: list[int]
+    person: list[int]  # the corpus index of each one's person (its bind character)
+    rests: list[RestConfig]
+    poses: tuple[str, ...]
+    neutral: np.ndarray
+    normals: np.ndarray
+    posed: np.ndarray
+    mu_neutral: np.ndarray
+    mu_posed: np.ndarray
+    features: list[SurfaceFeatures]
+
+    def __contains__(self, i: int) -> bool:
+        return i in self._row
+
+    @cached_property
+    def _row(self) -> dict[int, int]:
+        return {i: k for k, i in enumerate(self.ids)}
+
+    def target(self, i: int, pose: str) -> np.ndarray:
+        """(V, 3) the final state of `pose` on extra character `i`."""
+        return self.posed[self._row[i], self.poses.index(pose)]
+
+
+def _init_worker() -> None:
+    import os
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    torch.set_num_threads(1)
+    from latent_model.corpus.states import StateGenerator
+
+    _WORKER["gen"] = StateGenerator()
+
+
+def _character(args) -> tuple:
+    """One person in one rest: neutral, normals, posed finals, SDF samples of every state, surface features."""
+    from latent_model.corpus.sdf import SdfSampling, sample_sdf, vertex_normals
+    from latent_model.surface import surface_features
+
+    spec_dict, rest_dict, poses, sdf_dict, body_faces, seed = args
+    gen = _WORKER["gen"]
+    spec, rest, sdf = IdentitySpec.from_dict(spec_dict), RestConfig(**rest_dict), SdfSampling(**sdf_dict)
+    neutral = gen.neutral(spec, rest)
+    posed = np.stack([gen.pose(spec, p, rest).skinning_plus_blendshape for p in poses])
+    seeds = np.random.SeedSequence(seed).generate_state(len(poses) + 1)
+    samples = [sample_sdf(v, body_faces, sdf, int(s)) for v, s in zip([neutral, *posed], seeds)]
+    sf = surface_features(neutral, gen.faces)
+    return (neutral.astype(np.float32), vertex_normals(neutral, gen.faces).astype(np.float32),
+            posed.astype(np.float32), np.stack([s[0] for s in samples]), np.stack([s[1] for s in samples]),
+            (sf.coords, sf.frames, sf.medial))
+
+
+def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...], per_person: int, seed: int,
+                     device, workers: int = 2, log=print) -> ExtraCharacters:
+    """Every training person of `corpus` (its bind character among `train_ids`) in `per_person` random rests,
+    posed in `poses`, with the frozen encoder's latent means of every state."""
+    from latent_model.encoding import encode_sample_sets
+
+    rng = np.random.default_rng([seed, 7])
+    persons = [i for i in train_ids if corpus.identities[i].rest == "bind"]
+    jobs, person, rests = [], [], []
+    for n, i in enumerate(persons):
+        for k, rest in enumerate(random_rests(rng, per_person, prefix=f"drawn{n:03d}_")):
+            spec = asdict(corpus.identities[i])
+            jobs.append((spec, asdict(rest), tuple(poses), asdict(corpus.config.sdf),
+                         corpus.body_faces.astype(np.int64), [seed, n, k]))
+            person.append(i)
+            rests.append(rest)
+    t0 = time.perf_counter()
+    out = []
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init_worker) if workers > 1 else _Serial() as pool:
+        for k, r in enumerate(pool.imap(_character, jobs)):
+            out.append(r)
+            if (k + 1) % 20 == 0 or k + 1 == len(jobs):
+                log(f"extra rests: {k + 1}/{len(jobs)} characters posed and sampled ({time.perf_counter() - t0:.0f} s)")
+    P = len(poses)
+    pts = np.concatenate([r[3] for r in out])
+    vals = np.concatenate([r[4] for r in out])
+    mu = encode_sample_sets(model, list(range(len(pts))), lambda k: (pts[k], vals[k]), device).reshape(len(out), P + 1, -1)
+    log(f"extra rests: {len(out)} characters encoded ({time.perf_counter() - t0:.0f} s)")
+    first = corpus.manifest["n_identities"]
+    return ExtraCharacters(
+        ids=list(range(first, first + len(out))), person=person, rests=rests, poses=tuple(poses),
+        neutral=np.stack([r[0] for r in out]), normals=np.stack([r[1] for r in out]),
+        posed=np.stack([r[2] for r in out]), mu_neutral=mu[:, 0], mu_posed=mu[:, 1:],
+        features=[SurfaceFeatures(*r[5], {}) for r in out])
+
+
+class _Serial:
+    """A one-process stand-in for a Pool (tests, one core)."""
+
+    def __enter__(self):
+        _init_worker()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+    @staticmethod
+    def imap(fn, jobs):
+        return map(fn, jobs)
