@@ -90,14 +90,14 @@ def main() -> None:
         cache.get(i)
     print(f"{len(train)} training / {len(val)} validation characters, {len(poses)} poses; "
           f"encoding + surface features {time.perf_counter() - t:.0f} s")
-    extra = None
+    drawn = None
     if args.extra_rests and not args.load:
         from latent_model.train.rest_augment import extra_characters
 
-        extra = extra_characters(model, c, train, poses, args.extra_rests, seed=0, device=torch.device("cpu"))
-        cache.add(extra)
-        table.add(extra)
-    fitted = train + (extra.ids if extra else [])
+        drawn = extra_characters(model, c, train, poses, args.extra_rests, seed=0, device=torch.device("cpu"))
+        cache.add(drawn)
+        table.add(drawn)
+    fitted = train + (drawn.ids if drawn else [])
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
                             mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local,
                             delta_dims=args.delta_dims, delta_noise=args.delta_noise,
@@ -124,7 +124,7 @@ def main() -> None:
         decoder.load_state_dict(torch.load(args.load))
     else:
         train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
-                             validate_every=max(args.steps // 3, 1), extra=extra)
+                             validate_every=max(args.steps // 3, 1), extra=drawn)
         print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
     n_v = len(cache.get(val[0])[0])
     rigidifiers: dict[int, object] = {}
