@@ -7,7 +7,9 @@ characters' explained motion / static leakage per rest, mean delta, for the broa
 from __future__ import annotations
 
 import argparse
+import pickle
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -48,6 +50,8 @@ def main() -> None:
                     "give the checkpoint's own)")
     ap.add_argument("--extra-rests", type=int, default=0, help="each training person also in this many random "
                     "rests within the training rests' ranges (train/rest_augment.py)")
+    ap.add_argument("--drawn-cache", help="keep the drawn characters in this pickle (and reuse them when present: same "
+                    "corpus, encoder, poses and --extra-rests only)")
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
@@ -94,7 +98,11 @@ def main() -> None:
     if args.extra_rests and not args.load:
         from latent_model.train.rest_augment import extra_characters
 
-        drawn = extra_characters(model, c, train, poses, args.extra_rests, seed=0, device=torch.device("cpu"))
+        drawn = _load_drawn(args.drawn_cache) if args.drawn_cache and Path(args.drawn_cache).exists() else None
+        if drawn is None or len(drawn.ids) != args.extra_rests * len(set(drawn.person)):
+            drawn = extra_characters(model, c, train, poses, args.extra_rests, seed=0, device=torch.device("cpu"))
+            if args.drawn_cache:
+                _save_drawn(args.drawn_cache, drawn)
         cache.add(drawn)
         table.add(drawn)
     fitted = train + (drawn.ids if drawn else [])
@@ -194,6 +202,16 @@ def main() -> None:
                       f"leak {np.mean([e['leak_mm'] for e in rows]):.2f} mm, strain {np.mean([e['strain'] for e in rows]):.1f} %")
     if args.save:
         torch.save(decoder.state_dict(), args.save)
+
+
+def _save_drawn(path: str, drawn) -> None:
+    with open(path, "wb") as f:
+        pickle.dump(drawn, f, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _load_drawn(path: str):
+    with open(path, "rb") as f:
+        return pickle.load(f)
 
 
 if __name__ == "__main__":

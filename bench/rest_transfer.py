@@ -24,6 +24,8 @@ def main() -> None:
     ap.add_argument("--split", default="test", choices=("test", "val"))
     ap.add_argument("--persons", type=int, default=0, help="only the first N persons of the split (0: all)")
     ap.add_argument("--poses", default=",".join(BROAD))
+    ap.add_argument("--strategy", default="mean_pose_delta",
+                    help="mean_pose_delta, nearest_identity_delta or oracle (the character's own delta)")
     args = ap.parse_args()
     from latent_model.analysis.metrics import mesh_errors
     from latent_model.config import default_corpus_dir
@@ -52,10 +54,12 @@ def main() -> None:
             mu = encode_states(transfer.model, c, [s], transfer.device)[0]
             mesh = transfer.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=mu)
             for pose in poses:
-                pred = transfer.predict_detail(mesh, pose, "mean_pose_delta").vertices
+                own = (encode_states(transfer.model, c, [c.state(i, pose, "skinning_plus_blendshape")], transfer.device)[0]
+                       if args.strategy == "oracle" else None)
+                pred = transfer.predict_detail(mesh, pose, args.strategy, oracle_target_mu=own).vertices
                 truth = c.vertices(c.state(i, pose, "skinning_plus_blendshape"))
                 table.setdefault((rest, pose), []).append(mesh_errors(pred, truth, c.vertices(s)))
-    print(f"{args.split} characters of {len(persons)} persons, mean delta, explained / leak mm "
+    print(f"{args.split} characters of {len(persons)} persons, {args.strategy}, explained / leak mm "
           f"({time.perf_counter() - t0:.0f} s)")
     rests = list(by_rest)
     print(f"{'pose':22s}" + "".join(f"{r:>18s}" for r in rests))

@@ -98,7 +98,8 @@ class MotionDecoderConfig:
     lr: float = 1e-3  # learning rate (cosine decay to 5 %)
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
     # each training person also stands in this many random rests drawn within the training rests' angle ranges
-    # (train/rest_augment.py): six fixed rests taught the decoder those six, and unseen rests lost motion
+    # (train/rest_augment.py); 2 read a character's own delta far better in an unseen rest but not the mean delta
+    # (validation, docs/history.md), and cost 8 min of Phase B
     extra_rests: int = 0
     edge: float = 0.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
     edge_rings: int = 3  # a vertex's partner in that term is within this many edges

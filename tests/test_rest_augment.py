@@ -84,3 +84,16 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
     # each drawn character stands differently from its person's bind character
     assert all(np.abs(extra.neutral[k] - tiny_corpus.vertices(tiny_corpus.state(i, None, "neutral"))).max() > 0.01
                for k, i in enumerate(extra.person))
+
+
+def test_a_preset_stored_before_the_drawn_rests_reads_as_trained_without_them():
+    import json
+
+    from latent_model.config import Preset, preset
+
+    p = preset("standard")
+    d = json.loads(json.dumps(dataclasses.replace(p, model=dataclasses.replace(
+        p.model, motion=dataclasses.replace(p.model.motion, extra_rests=2))).to_dict()))
+    assert Preset.from_dict(d).model.motion.extra_rests == 2
+    del d["model"]["motion"]["extra_rests"]
+    assert Preset.from_dict(d).model.motion.extra_rests == 0
