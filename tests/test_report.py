@@ -147,3 +147,22 @@ def test_evaluate_refuses_a_corpus_the_checkpoint_was_not_trained_on(model_files
     save_checkpoint(stale, model, p, "all", 0, extra={"corpus_digest": "0123456789abcdef"})
     with pytest.raises(CorpusError, match=r"generator v3's corpus, this program builds v4.*--corpus"):
         evaluate(stale, model_files[1], tiny_corpus.path, tmp_path / "out", progress=False)
+
+
+def test_the_mesh_transfer_shared_among_processes_gives_the_one_process_metrics(model_files, tiny_corpus):
+    """`workers` = 2 splits the characters between two processes; every metric and example is the same."""
+    from latent_model.analysis.transfer_eval import evaluate_transfer
+    from latent_model.transfer import Transfer
+
+    transfer = Transfer.from_files(*model_files)
+    ids = tiny_corpus.split_indices("test")
+    assert len(ids) >= 2
+    one, ex_one = evaluate_transfer(transfer, tiny_corpus, ids, progress=False, workers=1)
+    two, ex_two = evaluate_transfer(transfer, tiny_corpus, ids, progress=False, workers=2)
+    assert list(two) == list(one)
+    for k, v in one.items():
+        assert two[k] == pytest.approx(v, rel=1e-6, abs=1e-9), k
+    assert set(ex_two) == set(ex_one) and ex_one
+    for key, figs in ex_one.items():
+        for name, v in figs.items():
+            np.testing.assert_allclose(ex_two[key][name], v, atol=1e-6)

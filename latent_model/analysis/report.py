@@ -4,6 +4,7 @@ metrics.json (stable flat keys) and PNG figures in one directory."""
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -42,6 +43,8 @@ def add_arguments(p) -> None:
     p.add_argument("--transfer-ids", type=int, default=0, help="held-out identities in the mesh analysis (0 = all)")
     p.add_argument("--fresh-baselines", action="store_true",
                    help="recompute the no-learning baselines (default: kept per corpus in $LRR_DATA/cache/baselines)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes sharing the mesh transfer's characters (default: up to 2, one per core)")
     p.add_argument("--quiet", action="store_true")
 
 
@@ -54,7 +57,8 @@ def run_cli(args) -> None:
     t = time.perf_counter()
     out = evaluate(ckpt, bank, Path(args.corpus) if args.corpus else None, Path(args.out),
                    transfer_ids=args.transfer_ids, progress=not args.quiet,
-                   baseline_cache=None if args.fresh_baselines else data_root() / "cache" / "baselines")
+                   baseline_cache=None if args.fresh_baselines else data_root() / "cache" / "baselines",
+                   workers=args.workers)
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
 
 
@@ -133,9 +137,10 @@ def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, d
 
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
-             progress: bool = True, baseline_cache: Path | None = None) -> Path:
+             progress: bool = True, baseline_cache: Path | None = None, workers: int | None = None) -> Path:
     """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
-    keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time)."""
+    keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time).
+    `workers`: processes sharing the mesh transfer's characters (None: one per core, at most 2)."""
     from latent_model.analysis import figures
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sources import model_source
@@ -185,7 +190,11 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
-    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress)
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1, len(ids))
+    if workers < 1:
+        raise ValueError(f"--workers {workers}: give 1 or more processes")
+    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress, workers=workers)
     names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields"}
     tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
     timings["transfer_s"] = time.perf_counter() - t

@@ -51,10 +51,12 @@ def nearest_training_identity(corpus: Corpus, train: list[int]) -> Callable[[int
 
 def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str, ...] = PAIR_KINDS,
                       example_identity: int | None = None, progress: bool = True,
-                      poses: tuple[str, ...] | None = None) -> tuple[dict, dict]:
+                      poses: tuple[str, ...] | None = None, workers: int = 1) -> tuple[dict, dict]:
     """(flat metrics `transfer.<kind>.<pose>.<strategy>.<metric>` + group means, examples for
     figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity).
-    `poses`: the target poses to evaluate (default: every corpus pose)."""
+    `poses`: the target poses to evaluate (default: every corpus pose). `workers` > 1: the identities are shared
+    among that many processes of one thread each (most of the work is single-threaded numpy); the metrics are
+    those of one process up to float rounding (each pair is the same computation)."""
     from tqdm import tqdm
 
     from latent_model.encoding import encode_sample_sets
@@ -65,12 +67,6 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     train = [j for j in corpus.split_indices("train") if corpus.identities[j].rest in rests]
     nearest_of = nearest_training_identity(corpus, train)
     near = {i: nearest_of(i) for i in ids}
-    faces = corpus.faces
-    prepared: dict[int, object] = {}
-    neutrals: dict[int, object] = {}
-    per: dict[tuple[str, str, str], list[dict]] = {}
-    gates: dict[tuple[str, str, str], list[float]] = {}
-    examples: dict = {}
     example_identity = ids[0] if example_identity is None else example_identity
     pairs_by_key: dict[tuple[str, str], list[Pair]] = {}
     for p in enumerate_pairs(ids, tuple(corpus.poses) if poses is None else tuple(poses), kinds):
@@ -81,17 +77,89 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                    for st in (p.source, p.target)})
     mu_of_row = dict(zip(rows, encode_sample_sets(transfer.model, rows, corpus.sdf_of_row, transfer.device,
                                                   progress=progress, desc="encoding")))
+    # the training characters' mean offsets of each (kind, pose), for the offset-copy baseline
+    mean_offsets = {}
+    for key, pairs in pairs_by_key.items():
+        s, t = pairs[0].source, pairs[0].target
+        mean_offsets[key] = np.mean(np.stack([corpus.vertices(corpus.state(j, *t)) - corpus.vertices(corpus.state(j, *s))
+                                              for j in train]), axis=0)
+    shared = (mu_of_row, mean_offsets, near, example_identity)
+    jobs = [{k: [p for p in ps if p.identity == i] for k, ps in pairs_by_key.items()} for i in ids]
+    bar = tqdm(total=len(ids), desc="transfer", unit="character", disable=not progress)
+    results = []
+    if workers > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(workers, initializer=_init_worker,
+                                          initargs=(transfer, str(corpus.path), shared)) as pool:
+            for r in pool.imap(_work, jobs):
+                results.append(r)
+                bar.update()
+    else:
+        for job in jobs:
+            results.append(_evaluate_pairs(transfer, corpus, job, *shared))
+            bar.update()
+    bar.close()
+    # rows in the one-process order: key by key, identity by identity
+    per: dict[tuple[str, str, str], list[dict]] = {}
+    gates: dict[tuple[str, str, str], list[float]] = {}
+    examples: dict = {}
+    for key in pairs_by_key:
+        for r_per, r_gates, r_examples in results:
+            for k in r_per.get(key, {}):
+                per.setdefault(k, []).extend(r_per[key][k])
+            for k in r_gates.get(key, {}):
+                gates.setdefault(k, []).extend(r_gates[key][k])
+    for _, _, r_examples in results:
+        examples.update(r_examples)
+    m: dict = {}
+    for (kind, pose, strat), rows in per.items():
+        for k in METRICS:
+            m[f"transfer.{kind}.{pose}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
+    for (kind, pose, strat), g in gates.items():
+        m[f"transfer.{kind}.{pose}.{strat}.gate"] = float(np.mean(g))
+    # group means (per pair kind, pose group, strategy)
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for (kind, pose, strat), rows in per.items():
+        base = pose.split("@")[0]
+        g = "combo" if get_pose(base).is_combo else get_pose(base).group
+        groups.setdefault((kind, g, strat), []).extend(rows)
+    for (kind, g, strat), rows in groups.items():
+        for k in METRICS:
+            m[f"transfer_group.{kind}.{g}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
+    return m, examples
+
+
+_WORKER: dict = {}
+
+
+def _init_worker(transfer, corpus_path: str, shared: tuple) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    _WORKER.update(transfer=transfer, corpus=Corpus(corpus_path), shared=shared)
+
+
+def _work(job: dict) -> tuple[dict, dict, dict]:
+    return _evaluate_pairs(_WORKER["transfer"], _WORKER["corpus"], job, *_WORKER["shared"])
+
+
+def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str], list[Pair]], mu_of_row: dict,
+                    mean_offsets: dict, near: dict[int, int], example_identity: int) -> tuple[dict, dict, dict]:
+    """The pairs of one identity: ({(kind, pose): {(kind, pose key, strategy): [metrics]}}, the same of gates,
+    examples)."""
+    faces = corpus.faces
+    prepared: dict[int, object] = {}
+    neutrals: dict[int, object] = {}
+    per: dict = {}
+    gates: dict = {}
+    examples: dict = {}
 
     def latent(s: int) -> np.ndarray:
         return mu_of_row[corpus.row(s)]
 
-    for (kind, bkey), pairs in tqdm(pairs_by_key.items(), desc="transfer", unit="pose", disable=not progress):
-        # training offsets of this (kind, pose), for the offset-copy baselines
-        offsets = {}
-        for j in train:
-            s, t = corpus.state(j, *pairs[0].source), corpus.state(j, *pairs[0].target)
-            offsets[j] = corpus.vertices(t) - corpus.vertices(s)
-        mean_offset = np.mean(np.stack(list(offsets.values())), axis=0)
+    for (kind, bkey), pairs in pairs_by_key.items():
+        key_per, key_gates = per.setdefault((kind, bkey), {}), gates.setdefault((kind, bkey), {})
         for p in pairs:
             s = corpus.state(p.identity, p.source[0], p.source[1])
             t = corpus.state(p.identity, *p.target)
@@ -111,13 +179,15 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                 "oracle": transfer.predict_detail(mesh, bkey, "oracle", kind=kind, oracle_target_mu=latent(t)),
             }
             for name, o in outs.items():
-                gates.setdefault((kind, pose_key(p), name), []).append(o.gate)
+                key_gates.setdefault((kind, pose_key(p), name), []).append(o.gate)
+            j = near[p.identity]
+            offset_nearest = corpus.vertices(corpus.state(j, *p.target)) - corpus.vertices(corpus.state(j, *p.source))
             preds = {
                 **{name: o.vertices for name, o in outs.items()},
                 **{f"{name}_raw": o.raw for name, o in outs.items()},
                 "no_motion": v_src,
-                "offset_nearest": v_src + offsets[near[p.identity]],
-                "offset_mean": v_src + mean_offset,
+                "offset_nearest": v_src + offset_nearest,
+                "offset_mean": v_src + mean_offsets[(kind, bkey)],
             }
             n_true = vertex_normals(truth, faces)
             seen: dict[int, dict] = {}  # an ungated output is the gated one when the gate is open: measured once
@@ -126,24 +196,9 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                     e = mesh_errors(pred, truth, v_src)
                     e["normal"] = normal_consistency(vertex_normals(pred, faces), n_true)
                     seen[id(pred)] = e
-                per.setdefault((kind, pose_key(p), name), []).append(dict(seen[id(pred)]))
+                key_per.setdefault((kind, pose_key(p), name), []).append(dict(seen[id(pred)]))
             if p.identity == example_identity and (p.pose in EXAMPLE_POSES or kind == "skinning_to_skinning_plus_blendshape"
                                                    and p.pose == "elbowBentLf"):
                 examples[(kind, pose_key(p))] = {"source": v_src, "truth": truth,
                                                  **{k: preds[k] for k in ("mean", "nearest", "oracle")}}
-    m: dict = {}
-    for (kind, pose, strat), rows in per.items():
-        for k in METRICS:
-            m[f"transfer.{kind}.{pose}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
-    for (kind, pose, strat), g in gates.items():
-        m[f"transfer.{kind}.{pose}.{strat}.gate"] = float(np.mean(g))
-    # group means (per pair kind, pose group, strategy)
-    groups: dict[tuple[str, str, str], list[dict]] = {}
-    for (kind, pose, strat), rows in per.items():
-        base = pose.split("@")[0]
-        g = "combo" if get_pose(base).is_combo else get_pose(base).group
-        groups.setdefault((kind, g, strat), []).extend(rows)
-    for (kind, g, strat), rows in groups.items():
-        for k in METRICS:
-            m[f"transfer_group.{kind}.{g}.{strat}.{k}"] = float(np.mean([r[k] for r in rows]))
-    return m, examples
+    return per, gates, examples
