@@ -163,6 +163,10 @@ def test_the_mesh_transfer_shared_among_processes_gives_the_one_process_metrics(
     for k, v in one.items():
         assert two[k] == pytest.approx(v, rel=1e-6, abs=1e-9), k
     assert set(ex_two) == set(ex_one) and ex_one
+    with pytest.raises(ValueError, match="--workers 0"):
+        from latent_model.analysis.report import evaluate
+
+        evaluate(*model_files, tiny_corpus.path, tiny_corpus.path / "never", workers=0)
     for key, figs in ex_one.items():
         for name, v in figs.items():
             np.testing.assert_allclose(ex_two[key][name], v, atol=1e-6)

@@ -142,6 +142,9 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time).
     `workers`: processes sharing the mesh transfer's characters (None: one per core, at most 2)."""
     from latent_model.analysis import figures
+
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers {workers}: give 1 or more processes (or leave it out: one per core, at most 2)")
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sources import model_source
     from latent_model.analysis.decoder_eval import evaluate_decoder
@@ -190,10 +193,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
-    if workers is None:
-        workers = min(2, os.cpu_count() or 1, len(ids))
-    if workers < 1:
-        raise ValueError(f"--workers {workers}: give 1 or more processes")
+    workers = min(2, os.cpu_count() or 1, len(ids)) if workers is None else workers
     tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress, workers=workers)
     names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields"}
     tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
