@@ -28,14 +28,15 @@ def test_drawn_rests_repeat_with_the_seed_spread_over_the_training_ranges_and_le
 
 def test_a_drawn_rest_is_posed_as_the_corpus_poses_a_named_one(tiny_corpus):
     """The same angles as a corpus rest give that corpus character's neutral and posed geometry."""
-    from latent_model.train.rest_augment import _character, _init_worker
+    from latent_model.corpus.build import init_generator_worker
+    from latent_model.train.rest_augment import _character
 
     c = tiny_corpus
     i = next(i for i in c.split_indices("train") if c.identities[i].rest != "bind")
     named = get_rest(c.identities[i].rest)
     drawn = RestConfig("drawn_same", **{a: getattr(named, a) for a in ANGLES})
     pose = next(p for p in c.poses if p.startswith("elbow"))
-    _init_worker()
+    init_generator_worker()
     neutral, normals, posed, points, values, _ = _character((
         dataclasses.asdict(c.identities[i]), dataclasses.asdict(drawn), (pose,), dataclasses.asdict(c.config.sdf),
         c.body_faces.astype(np.int64), [0, 0, 0]))

@@ -105,7 +105,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     gates: dict[tuple[str, str, str], list[float]] = {}
     examples: dict = {}
     for key in pairs_by_key:
-        for r_per, r_gates, r_examples in results:
+        for r_per, r_gates, _ in results:
             for k in r_per.get(key, {}):
                 per.setdefault(k, []).extend(r_per[key][k])
             for k in r_gates.get(key, {}):

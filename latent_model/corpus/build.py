@@ -38,7 +38,8 @@ class BuildResult:
     mesh_seconds: float
 
 
-def _init_worker() -> None:
+def init_generator_worker() -> None:
+    """One rig state generator per worker process, one thread each (`generator()` returns it)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
@@ -46,6 +47,11 @@ def _init_worker() -> None:
     from latent_model.corpus.states import StateGenerator
 
     _WORKER["gen"] = StateGenerator()
+
+
+def generator():
+    """This process's state generator (after `init_generator_worker`)."""
+    return _WORKER["gen"]
 
 
 def _mesh_volume(v: np.ndarray, f: np.ndarray) -> float:
@@ -94,7 +100,7 @@ def _has_skeletal(name: str) -> bool:
 
 def _work(args) -> tuple[int, dict, float, float]:
     i, spec_dict, cfg_dict, poses, directory, n_identities = args
-    gen = _WORKER["gen"]
+    gen = generator()
     cfg = CorpusConfig.from_dict(cfg_dict)
     layout = Layout(n_identities, tuple(poses))
     body_faces = np.load(Path(directory) / "body_faces.npy").astype(np.int64)
@@ -178,11 +184,11 @@ def build(cfg: CorpusConfig, out: Path, workers: int = 2, shard: tuple[int, int]
         progress(n_done, len(mine))
     if jobs:
         if workers <= 1:
-            _init_worker()
+            init_generator_worker()
             results = map(_work, jobs)
             pool = None
         else:
-            pool = mp.get_context("spawn").Pool(workers, initializer=_init_worker)
+            pool = mp.get_context("spawn").Pool(workers, initializer=init_generator_worker)
             results = pool.imap_unordered(_work, jobs)
         try:
             for i, stats, tm, ts in results:

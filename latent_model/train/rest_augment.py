@@ -16,12 +16,12 @@ from functools import cached_property
 
 import numpy as np
 
+from latent_model.corpus.build import generator, init_generator_worker
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.rests import REST_CONFIGS, TRAIN_RESTS, RestConfig
 from latent_model.surface import SurfaceFeatures
 
 ANGLES = ("arms", "elbows", "legs", "spine")
-_WORKER: dict = {}
 
 
 def rest_ranges() -> dict[str, tuple[float, float]]:
@@ -67,25 +67,13 @@ class ExtraCharacters:
         return self.posed[self._row[i], self.poses.index(pose)]
 
 
-def _init_worker() -> None:
-    import os
-
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import torch
-
-    torch.set_num_threads(1)
-    from latent_model.corpus.states import StateGenerator
-
-    _WORKER["gen"] = StateGenerator()
-
-
 def _character(args) -> tuple:
     """One person in one rest: neutral, normals, posed finals, SDF samples of every state, surface features."""
     from latent_model.corpus.sdf import SdfSampling, sample_sdf, vertex_normals
     from latent_model.surface import surface_features
 
     spec_dict, rest_dict, poses, sdf_dict, body_faces, seed = args
-    gen = _WORKER["gen"]
+    gen = generator()
     spec, rest, sdf = IdentitySpec.from_dict(spec_dict), RestConfig(**rest_dict), SdfSampling(**sdf_dict)
     neutral = gen.neutral(spec, rest)
     posed = np.stack([gen.pose(spec, p, rest).skinning_plus_blendshape for p in poses])
@@ -115,12 +103,20 @@ def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...]
             rests.append(rest)
     t0 = time.perf_counter()
     out = []
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init_worker) if workers > 1 else _Serial() as pool:
-        for k, r in enumerate(pool.imap(_character, jobs)):
+    if workers <= 1:
+        init_generator_worker()
+        pool, results = None, map(_character, jobs)
+    else:
+        pool = mp.get_context("spawn").Pool(workers, initializer=init_generator_worker)
+        results = pool.imap(_character, jobs)
+    try:
+        for k, r in enumerate(results):
             out.append(r)
             if (k + 1) % 20 == 0 or k + 1 == len(jobs):
                 log(f"extra rests: {k + 1}/{len(jobs)} characters posed and sampled ({time.perf_counter() - t0:.0f} s)")
+    finally:
+        if pool is not None:
+            pool.terminate()
     P = len(poses)
     pts = np.concatenate([r[3] for r in out])
     vals = np.concatenate([r[4] for r in out])
@@ -133,17 +129,3 @@ def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...]
         posed=np.stack([r[2] for r in out]), mu_neutral=mu[:, 0], mu_posed=mu[:, 1:],
         features=[SurfaceFeatures(*r[5], {}) for r in out])
 
-
-class _Serial:
-    """A one-process stand-in for a Pool (tests, one core)."""
-
-    def __enter__(self):
-        _init_worker()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        return None
-
-    @staticmethod
-    def imap(fn, jobs):
-        return map(fn, jobs)
