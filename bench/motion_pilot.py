@@ -38,6 +38,8 @@ def main() -> None:
     ap.add_argument("--smooth", default="0", help="comma-separated smoothing iterations of the motion at inference, "
                     "each reported in the final table")
     ap.add_argument("--mean-prob", type=float, default=None, help="probability of training on the pose's mean delta")
+    ap.add_argument("--other-prob", type=float, default=None,
+                    help="probability of training on another training character's delta of the pose")
     ap.add_argument("--world-penalty", type=float, default=0.0, help="weight of the world-axis outputs' size")
     ap.add_argument("--translation", type=float, default=0.0, help="weight of the translation length in the loss")
     ap.add_argument("--delta-dims", type=int, default=0, help="principal components of the delta direction read (0: all)")
@@ -52,6 +54,12 @@ def main() -> None:
                     "rests within the training rests' ranges (train/rest_augment.py)")
     ap.add_argument("--drawn-cache", help="keep the drawn characters in this pickle (and reuse them when present: same "
                     "corpus, encoder, poses and --extra-rests only)")
+    ap.add_argument("--extra-combos", type=int, default=0,
+                    help="each training character also posed in some of this many drawn combinations of 2-3 single "
+                         "body poses (train/combo_augment.py)")
+    ap.add_argument("--combos-per-character", type=int, default=8)
+    ap.add_argument("--combos-cache", help="keep the drawn combinations' states in this pickle (and reuse them when "
+                    "present: same corpus, encoder and --extra-combos / --combos-per-character only)")
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
     ap.add_argument("--save", help="write the decoder's state dict here")
     args = ap.parse_args()
@@ -105,11 +113,25 @@ def main() -> None:
                 _save_drawn(args.drawn_cache, drawn)
         cache.add(drawn)
         table.add(drawn)
+    combos = None
+    if args.extra_combos and not args.load:
+        from latent_model.train.combo_augment import extra_combinations
+
+        combos = _load_drawn(args.combos_cache) if args.combos_cache and Path(args.combos_cache).exists() else None
+        if combos is None:
+            singles = tuple(p for p in poses if not POSES[p].is_combo)
+            combos = extra_combinations(model, c, train, singles, args.extra_combos, args.combos_per_character,
+                                        seed=0, device=torch.device("cpu"))
+            if args.combos_cache:
+                _save_drawn(args.combos_cache, combos)
+        table.add_poses(combos)
+        print(f"{len(combos.poses)} drawn combinations, {len(combos.pairs)} pairs")
     fitted = train + (drawn.ids if drawn else [])
     decoder = MotionDecoder(model.cfg.latent, len(PAIR_KINDS), hidden=args.hidden, world=args.world,
                             mu_dims=args.mu_dims, mu_noise=args.mu_noise, local_inputs=not args.no_local,
                             delta_dims=args.delta_dims, delta_noise=args.delta_noise,
                             limb_direction=args.limb_direction)
+    decoder.delta_scale.fill_(table.scale)  # what Transfer divides a delta's length by (pair_inputs does it here)
     decoder.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in fitted])).float())
     decoder.set_delta_basis(torch.from_numpy(table.directions(fitted, poses)).float())
 
@@ -125,14 +147,16 @@ def main() -> None:
         return {g: f"{np.mean([x[0] for x in r]):.3f} / {np.mean([x[1] for x in r]):.2f} mm" for g, r in out.items()}
 
     extra = {"translation": args.translation, "world_penalty": args.world_penalty, **({} if args.edge is None else {"edge": args.edge}),
-             **({} if args.mean_prob is None else {"mean_prob": args.mean_prob})}
+             **({} if args.mean_prob is None else {"mean_prob": args.mean_prob}),
+             **({} if args.other_prob is None else {"other_prob": args.other_prob})}
     cfg = MotionDecoderConfig(steps=args.steps, batch=args.batch, vertices=args.vertices, **extra)
     t = time.perf_counter()
     if args.load:
         decoder.load_state_dict(torch.load(args.load))
     else:
         train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
-                             validate_every=max(args.steps // 3, 1), extra=drawn)
+                             validate_every=max(args.steps // 3, 1), extra=drawn,
+                                       extra_poses=combos)
         print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
     n_v = len(cache.get(val[0])[0])
     rigidifiers: dict[int, object] = {}

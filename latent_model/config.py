@@ -97,10 +97,17 @@ class MotionDecoderConfig:
     vertices: int = 1024  # vertices per pair per step (half where the pair moves the surface)
     lr: float = 1e-3  # learning rate (cosine decay to 5 %)
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
+    # probability of conditioning it on another training character's delta of the pose (the rest: its own): what
+    # the nearest identity and an example pair give; the own delta alone lets the decoder key on who it is
+    other_prob: float = 0.0
     # each training person also stands in this many random rests drawn within the training rests' angle ranges
     # (train/rest_augment.py); 2 read a character's own delta far better in an unseen rest but not the mean delta
     # (validation, docs/history.md), and cost 8 min of Phase B
     extra_rests: int = 0
+    # each training character is also posed in `combos_per_character` of this many seeded combinations of 2-3 of
+    # its single body poses (train/combo_augment.py; none shares two poses with an evaluated example combination)
+    extra_combos: int = 0
+    combos_per_character: int = 8
     edge: float = 0.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
     edge_rings: int = 3  # a vertex's partner in that term is within this many edges
     # weight of the translation's mean length (mm) in the loss: at r = 1 a turn about the vertex's own axis plus a
@@ -117,6 +124,9 @@ class MotionDecoderConfig:
             check_pair_kind(k)
         if not self.trained_kinds:
             raise ValueError("MotionDecoderConfig.trained_kinds must name at least one pair kind")
+        if min(self.mean_prob, self.other_prob) < 0 or self.mean_prob + self.other_prob > 1:
+            raise ValueError(f"MotionDecoderConfig.mean_prob ({self.mean_prob}) and other_prob ({self.other_prob}) "
+                             "are probabilities of one draw: each >= 0, together <= 1")
 
     def reads_as(self, kind: PairKind) -> PairKind:
         """The pair kind the decoder is conditioned on for a pair of `kind` (itself when trained on it)."""
@@ -235,6 +245,10 @@ class Preset:
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, delta_dims=0))
             if "extra_rests" not in stored:  # stored before the drawn rests: trained on the corpus's alone
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_rests=0))
+            if "other_prob" not in stored:  # stored before it: own or mean deltas only
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, other_prob=0.0))
+            if "extra_combos" not in stored:  # stored before the drawn combinations: the corpus's alone
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_combos=0))
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), model,
                       _from_dict(TrainConfig, d["train"]), _from_dict(LossWeights, d["loss"]))
 

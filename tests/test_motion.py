@@ -155,6 +155,48 @@ def test_the_world_penalty_moves_the_motion_into_the_limb_frame(tiny_corpus, tmp
     assert sizes[2.0] < 0.5 * sizes[0.0], sizes
 
 
+@pytest.mark.parametrize("other_prob", [0.0, 1.0])
+def test_training_conditions_on_another_characters_delta_as_often_as_other_prob_says(tiny_corpus, tmp_path,
+                                                                                    monkeypatch, other_prob):
+    """mean_prob 0: with other_prob 0 every pair reads its own delta; with 1 another character's delta of its pose."""
+    import dataclasses
+
+    import latent_model.train.motion as motion
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+
+    calls = []
+    original = motion.pair_inputs
+
+    def spy(cache, table, i, pose, delta, idx=None):
+        calls.append((table, i, pose, delta))
+        return original(cache, table, i, pose, delta, idx)
+
+    monkeypatch.setattr(motion, "pair_inputs", spy)
+    p = preset("tiny")
+    m = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=10, batch=4, vertices=64,
+                            mean_prob=0.0, other_prob=other_prob)
+    p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=m))
+    torch.manual_seed(0)
+    motion.train_motion_phase(LatentReRig(p.model).eval(), p, tiny_corpus, tmp_path / "run", torch.device("cpu"),
+                              progress=False)
+    train = tiny_corpus.split_indices("train")
+    whose = []
+    for table, i, pose, delta in calls[:40]:
+        owner = [j for j in train if np.array_equal(table.delta[(j, pose)], delta)]
+        assert len(owner) == 1  # a training character's own delta of this pose, never a mean
+        whose.append(owner[0] == i)
+    assert all(whose) if other_prob == 0 else sum(whose) < 0.6 * len(whose)
+
+
+def test_conditioning_probabilities_must_add_up_to_at_most_one():
+    from latent_model.config import MotionDecoderConfig
+
+    MotionDecoderConfig(mean_prob=0.5, other_prob=0.5)
+    with pytest.raises(ValueError, match="other_prob"):
+        MotionDecoderConfig(mean_prob=0.6, other_prob=0.5)
+
+
 def test_a_motion_in_the_limb_frame_turns_with_the_limb():
     """The same decoder and condition on a limb and on the limb turned rigidly (positions, normals,
     medial points and frames rotated together, intrinsic coordinates unchanged) gives the turned

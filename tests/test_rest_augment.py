@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 import torch
 
 from latent_model.corpus.rests import REST_CONFIGS, TEST_RESTS, VAL_RESTS, RestConfig, get_rest
@@ -87,14 +88,17 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
                for k, i in enumerate(extra.person))
 
 
-def test_a_preset_stored_before_the_drawn_rests_reads_as_trained_without_them():
+@pytest.mark.parametrize("name, value", [("extra_rests", 2), ("extra_combos", 40), ("other_prob", 0.3)])
+def test_a_preset_stored_before_a_decoder_training_option_reads_as_trained_without_it(name, value):
+    """Drawn rests, drawn combinations, another character's delta: a checkpoint's preset from before the option
+    existed was trained without it, whatever the option's default is now."""
     import json
 
     from latent_model.config import Preset, preset
 
     p = preset("standard")
     d = json.loads(json.dumps(dataclasses.replace(p, model=dataclasses.replace(
-        p.model, motion=dataclasses.replace(p.model.motion, extra_rests=2))).to_dict()))
-    assert Preset.from_dict(d).model.motion.extra_rests == 2
-    del d["model"]["motion"]["extra_rests"]
-    assert Preset.from_dict(d).model.motion.extra_rests == 0
+        p.model, motion=dataclasses.replace(p.model.motion, **{name: value}))).to_dict()))
+    assert getattr(Preset.from_dict(d).model.motion, name) == value
+    del d["model"]["motion"][name]
+    assert getattr(Preset.from_dict(d).model.motion, name) == 0

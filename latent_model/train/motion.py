@@ -17,11 +17,13 @@ import torch
 
 from latent_model.atomic import atomic_write
 from latent_model.config import MotionDecoderConfig
+from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
 from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
 from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
+from latent_model.train.combo_augment import ExtraPoses, extra_combinations
 from latent_model.train.rest_augment import ExtraCharacters, extra_characters
 from latent_model.types import FINAL, PAIR_KINDS
 
@@ -82,6 +84,14 @@ class DeltaTable:
             self.mu_neutral[i] = extra.mu_neutral[k]
             for j, p in enumerate(extra.poses):
                 self.delta[(i, p)] = extra.mu_posed[k, j] - extra.mu_neutral[k]
+
+    def add_poses(self, extra: "ExtraPoses") -> None:
+        """The deltas of poses beyond the corpus's (train/combo_augment.py) and each one's mean over the
+        characters posed in it; the scale stays the corpus's."""
+        for (i, p), mu in extra.mu.items():
+            self.delta[(i, p)] = mu - self.mu_neutral[i]
+        for p in extra.poses:
+            self.mean[p] = np.mean([self.delta[pair] for pair in extra.pairs if pair[1] == p], axis=0)
 
     def directions(self, ids: list[int], poses: tuple[str, ...]) -> np.ndarray:
         """(len(ids) * len(poses), Z) unit directions of the characters' own deltas."""
@@ -146,13 +156,18 @@ def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repiv
 def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: CharacterCache, table: DeltaTable,
                          train_ids: list[int], poses: tuple[str, ...], cfg: MotionDecoderConfig, seed: int,
                          log=print, validate=None, validate_every: int = 500,
-                         extra: "ExtraCharacters | None" = None) -> list[dict]:
-    """`extra`: characters beyond the corpus (in `cache` and `table` already) whose pairs are trained on too."""
+                         extra: "ExtraCharacters | None" = None, extra_poses: "ExtraPoses | None" = None) -> list[dict]:
+    """`extra`: characters beyond the corpus (in `cache` and `table` already) whose pairs are trained on too;
+    `extra_poses`: poses beyond the corpus's of training characters (their deltas in `table` already), likewise."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     opt = torch.optim.Adam(decoder.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps, eta_min=cfg.lr * 0.05)
     pairs = [(i, p) for i in train_ids for p in poses] + ([(i, p) for i in extra.ids for p in poses] if extra else [])
+    pairs += extra_poses.pairs if extra_poses else []
+    posed_in: dict[str, list[int]] = {}  # pose -> the characters with a delta of it
+    for i, p in pairs:
+        posed_in.setdefault(p, []).append(i)
     reach = ring_neighbours(corpus.faces, len(cache.get(train_ids[0])[0]), cfg.edge_rings) if cfg.edge else None
     history = []
     t0 = time.perf_counter()
@@ -161,14 +176,25 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
         for k in rng.integers(len(pairs), size=cfg.batch):
             i, p = pairs[k]
             v = cache.get(i)[0]
-            tgt = extra.target(i, p) if extra is not None and i in extra else corpus.vertices(corpus.state(i, p, FINAL))
+            if extra_poses is not None and (i, p) in extra_poses:
+                tgt = extra_poses.targets[(i, p)]
+            elif extra is not None and i in extra:
+                tgt = extra.target(i, p)
+            else:
+                tgt = corpus.vertices(corpus.state(i, p, FINAL))
             moving = np.flatnonzero(np.linalg.norm(tgt - v, axis=1) > 0.002)
             half = cfg.vertices // 2
             idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
                                   rng.integers(len(v), size=cfg.vertices - half)])
             if reach is not None:  # a neighbour of each moving sample: the edge term's partner
                 idx = np.concatenate([idx, sample_neighbours(rng, reach, idx[:half])])
-            delta = table.mean[p] if rng.random() < cfg.mean_prob else table.delta[(i, p)]
+            u = rng.random()
+            if u < cfg.mean_prob:
+                delta = table.mean[p]
+            elif u < cfg.mean_prob + cfg.other_prob:  # another character's delta of the pose, as transfer reads one
+                delta = table.delta[(posed_in[p][rng.integers(len(posed_in[p]))], p)]
+            else:
+                delta = table.delta[(i, p)]
             rows.append(pair_inputs(cache, table, i, p, delta, idx))
             targets.append(tgt[idx])
         b = _batch_tensors(rows)
@@ -207,7 +233,6 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
 def training_poses(corpus: Corpus, which: str) -> tuple[str, ...]:
     """The corpus poses the motion decoder trains on: "all", or "body" (poses of the body group and the combos
     made only of them: the face and finger poses' deltas are at the latent noise floor, issue 19)."""
-    from latent_model.corpus.poses import get_pose
 
     if which == "all":
         return tuple(corpus.poses)
@@ -238,12 +263,18 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
                                  workers=min(2, os.cpu_count() or 1), log=log)
         cache.add(extra)
         table.add(extra)
+    combos = None
+    if m.extra_combos:
+        singles = tuple(p for p in poses if not get_pose(p).is_combo)
+        combos = extra_combinations(model, corpus, train_ids, singles, m.extra_combos, m.combos_per_character,
+                                    preset.train.seed + 7000, device, workers=min(2, os.cpu_count() or 1), log=log)
+        table.add_poses(combos)
     fitted = train_ids + (extra.ids if extra else [])
     dec.delta_scale.fill_(table.scale)
     dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in fitted])).float())
     dec.set_delta_basis(torch.from_numpy(table.directions(fitted, poses)).float())
     dec.train()
     history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, m, preset.train.seed + 5000,
-                                   log=log, extra=extra)
+                                   log=log, extra=extra, extra_poses=combos)
     dec.eval()
     return history

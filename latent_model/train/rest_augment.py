@@ -67,6 +67,27 @@ class ExtraCharacters:
         return self.posed[self._row[i], self.poses.index(pose)]
 
 
+def generate(work, jobs: list, workers: int, progress=lambda done: None) -> list:
+    """[work(job) for job in jobs] in order, on `workers` spawned processes each holding a rig state generator
+    (`corpus.build.generator()`; in this process when workers <= 1); progress(done) every 20 jobs and at the end."""
+    out = []
+    if workers <= 1:
+        init_generator_worker()
+        pool, results = None, map(work, jobs)
+    else:
+        pool = mp.get_context("spawn").Pool(workers, initializer=init_generator_worker)
+        results = pool.imap(work, jobs)
+    try:
+        for k, r in enumerate(results):
+            out.append(r)
+            if (k + 1) % 20 == 0 or k + 1 == len(jobs):
+                progress(k + 1)
+    finally:
+        if pool is not None:
+            pool.terminate()
+    return out
+
+
 def _character(args) -> tuple:
     """One person in one rest: neutral, normals, posed finals, SDF samples of every state, surface features."""
     from latent_model.corpus.sdf import SdfSampling, sample_sdf, vertex_normals
@@ -102,21 +123,8 @@ def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...]
             person.append(i)
             rests.append(rest)
     t0 = time.perf_counter()
-    out = []
-    if workers <= 1:
-        init_generator_worker()
-        pool, results = None, map(_character, jobs)
-    else:
-        pool = mp.get_context("spawn").Pool(workers, initializer=init_generator_worker)
-        results = pool.imap(_character, jobs)
-    try:
-        for k, r in enumerate(results):
-            out.append(r)
-            if (k + 1) % 20 == 0 or k + 1 == len(jobs):
-                log(f"extra rests: {k + 1}/{len(jobs)} characters posed and sampled ({time.perf_counter() - t0:.0f} s)")
-    finally:
-        if pool is not None:
-            pool.terminate()
+    out = generate(_character, jobs, workers, lambda k: log(f"extra rests: {k}/{len(jobs)} characters posed and "
+                                                              f"sampled ({time.perf_counter() - t0:.0f} s)"))
     P = len(poses)
     pts = np.concatenate([r[3] for r in out])
     vals = np.concatenate([r[4] for r in out])
