@@ -58,6 +58,9 @@ def main() -> None:
                     help="each training character also posed in some of this many drawn combinations of 2-3 single "
                          "body poses (train/combo_augment.py)")
     ap.add_argument("--combos-per-character", type=int, default=8)
+    ap.add_argument("--combo-sizes", default="2,3", help="poses per drawn combination (1: a single pose)")
+    ap.add_argument("--combo-odds", default="", help="how often each size is drawn (default: as combo_augment's)")
+    ap.add_argument("--combo-amplitude", default="", help="lowest,highest: each pose's angles scaled by a drawn factor")
     ap.add_argument("--combos-cache", help="keep the drawn combinations' states in this pickle (and reuse them when "
                     "present: same corpus, encoder and --extra-combos / --combos-per-character only)")
     ap.add_argument("--load", help="evaluate this saved decoder state instead of training one")
@@ -120,8 +123,15 @@ def main() -> None:
         combos = _load_drawn(args.combos_cache) if args.combos_cache and Path(args.combos_cache).exists() else None
         if combos is None:
             singles = tuple(p for p in poses if not POSES[p].is_combo)
+            from latent_model.train.combo_augment import SIZE_ODDS
+
+            sizes = [int(x) for x in args.combo_sizes.split(",")]
+            odds = ([float(x) for x in args.combo_odds.split(",")] if args.combo_odds
+                    else SIZE_ODDS if len(sizes) == 2 else [1 / len(sizes)] * len(sizes))
+            amplitude = tuple(float(x) for x in args.combo_amplitude.split(",")) if args.combo_amplitude else None
             combos = extra_combinations(model, c, train, singles, args.extra_combos, args.combos_per_character,
-                                        seed=0, device=torch.device("cpu"))
+                                        seed=0, device=torch.device("cpu"), sizes=sizes, odds=odds,
+                                        amplitude=amplitude)
             if args.combos_cache:
                 _save_drawn(args.combos_cache, combos)
         table.add_poses(combos)

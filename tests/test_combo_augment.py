@@ -33,6 +33,21 @@ def test_drawn_combinations_repeat_with_the_seed_and_leave_the_evaluated_combina
     assert len(names) == 60 and Counter(len(p.components) for p in drawn)[3] > 10
 
 
+def test_drawn_amplitudes_scale_each_poses_angles_within_the_range():
+    drawn = draw_combinations(BODY_SINGLES, 80, np.random.default_rng(5), sizes=(1, 2, 3), odds=(0.4, 0.3, 0.3),
+                              amplitude=(0.3, 1.3))
+    assert len({p.name for p in drawn}) == 80 and any(len(p.components) == 1 for p in drawn)
+    scales = []
+    for p in drawn:
+        rotations = [j for c in p.components for j in get_pose(c).joints]
+        assert [j.bone for j in p.joints] == [j.bone for j in rotations]
+        scales += [j.degrees / r.degrees for j, r in zip(p.joints, rotations)]
+    assert 0.3 - 1e-9 <= min(scales) < 0.45 and 1.15 < max(scales) <= 1.3 + 1e-9
+    # without amplitudes a lone pose is no combination
+    assert all(len(p.components) >= 2 for p in draw_combinations(BODY_SINGLES, 30, np.random.default_rng(5),
+                                                                 sizes=(1, 2), odds=(0.5, 0.5)))
+
+
 def test_a_drawn_combination_poses_as_the_corpus_poses_its_own_combination(tiny_corpus):
     """The generator's geometry of a drawn combination equals the corpus's for the same single poses."""
     from latent_model.corpus.build import init_generator_worker

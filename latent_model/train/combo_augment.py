@@ -11,7 +11,7 @@ each draw is seeded, so the same config gives the same characters.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -31,34 +31,44 @@ def held_out_combinations() -> list[frozenset[str]]:
     return [frozenset(e.poses) for e in EXAMPLES.values() if e.kind == "combination"]
 
 
-def combination(components: Sequence[str]) -> PoseConfig:
-    """The pose of several single body poses at once, named by them (`a+b+c`)."""
+def combination(components: Sequence[str], amplitudes: Sequence[float] | None = None) -> PoseConfig:
+    """The pose of several single body poses at once, named by them (`a+b+c`); with `amplitudes`, each pose's
+    angles scaled by its amplitude (named `a@0.5+b@1.2`)."""
     comps = tuple(components)
-    return PoseConfig("+".join(comps), "body", joints=tuple(j for c in comps for j in get_pose(c).joints),
+    if amplitudes is None:
+        return PoseConfig("+".join(comps), "body", joints=tuple(j for c in comps for j in get_pose(c).joints),
+                          components=comps)
+    joints = tuple(replace(j, degrees=j.degrees * a) for c, a in zip(comps, amplitudes) for j in get_pose(c).joints)
+    return PoseConfig("+".join(f"{c}@{a:.2f}" for c, a in zip(comps, amplitudes)), "body", joints=joints,
                       components=comps)
 
 
-def draw_combinations(singles: Sequence[str], n: int, rng: np.random.Generator) -> list[PoseConfig]:
-    """`n` distinct combinations of 2-3 of `singles` (in their order), no two acting on one bone, none a corpus
-    combination, none sharing two poses with a held-out example combination."""
+def draw_combinations(singles: Sequence[str], n: int, rng: np.random.Generator, sizes: Sequence[int] = SIZES,
+                      odds: Sequence[float] = SIZE_ODDS, amplitude: tuple[float, float] | None = None
+                      ) -> list[PoseConfig]:
+    """`n` distinct combinations of `sizes` of `singles` (in their order), no two acting on one bone, none a corpus
+    combination, none sharing two poses with a held-out example combination; with `amplitude` (lowest, highest),
+    each pose's angles are scaled by a factor drawn uniformly in it (size 1 then gives a single pose at another
+    amplitude)."""
     held = held_out_combinations()
     corpus = {frozenset(get_pose(p).components) for p in COMBO_POSES}
     order = {s: k for k, s in enumerate(singles)}
-    seen: set[frozenset[str]] = set()
+    seen: set[tuple[frozenset[str], tuple[float, ...] | None]] = set()
     out: list[PoseConfig] = []
     for _ in range(200 * max(n, 1)):
         if len(out) == n:
             break
-        k = int(rng.choice(SIZES, p=SIZE_ODDS))
+        k = int(rng.choice(list(sizes), p=list(odds)))
         comps = sorted((str(s) for s in rng.choice(list(singles), size=k, replace=False)), key=order.__getitem__)
         key = frozenset(comps)
-        if key in seen or key in corpus or any(len(key & h) >= 2 for h in held):
+        amps = None if amplitude is None else tuple(round(float(rng.uniform(*amplitude)), 2) for _ in comps)
+        if (key, amps) in seen or (amplitude is None and (key in corpus or k == 1)) or any(len(key & h) >= 2 for h in held):
             continue
         bones = [j.bone for c in comps for j in get_pose(c).joints]
         if len(bones) != len(set(bones)):
             continue
-        seen.add(key)
-        out.append(combination(comps))
+        seen.add((key, amps))
+        out.append(combination(comps, amps))
     if len(out) < n:
         raise ValueError(f"only {len(out)} distinct combinations of {len(singles)} single poses can be drawn; "
                          f"ask for fewer (MotionDecoderConfig.extra_combos)")
@@ -93,13 +103,15 @@ def _posed(args) -> tuple:
 
 
 def extra_combinations(model, corpus, train_ids: list[int], singles: Sequence[str], n_combos: int,
-                       per_character: int, seed: int, device, workers: int = 2, log=print) -> ExtraPoses:
+                       per_character: int, seed: int, device, workers: int = 2, log=print,
+                       sizes: Sequence[int] = SIZES, odds: Sequence[float] = SIZE_ODDS,
+                       amplitude: tuple[float, float] | None = None) -> ExtraPoses:
     """Every training character of `corpus` in `per_character` of `n_combos` drawn combinations of `singles`
     (each drawn combination about evenly often), with the frozen encoder's latent means of the posed states."""
     from latent_model.encoding import encode_sample_sets
 
     rng = np.random.default_rng([seed, 11])
-    combos = draw_combinations(singles, n_combos, rng)
+    combos = draw_combinations(singles, n_combos, rng, sizes, odds, amplitude)
     per_character = min(per_character, n_combos)
     # a shuffled round-robin deal: every combination on about len(train_ids) * per_character / n_combos characters
     deck = np.concatenate([rng.permutation(n_combos) for _ in range(-(-len(train_ids) * per_character // n_combos) + 1)])
