@@ -97,7 +97,7 @@ class MotionDecoderConfig:
     vertices: int = 1024  # vertices per pair per step (half where the pair moves the surface)
     lr: float = 1e-3  # learning rate (cosine decay to 5 %)
     mean_prob: float = 0.5  # probability of conditioning a training pair on its pose's mean delta
-    # probability of conditioning it on another training character's delta of the pose (the rest: its own): what
+    # probability of conditioning it on a random training character's delta of the pose (the rest: its own): what
     # the nearest identity and an example pair give; the own delta alone lets the decoder key on who it is
     other_prob: float = 0.0
     # each training person also stands in this many random rests drawn within the training rests' angle ranges
@@ -108,6 +108,11 @@ class MotionDecoderConfig:
     # its single body poses (train/combo_augment.py; none shares two poses with an evaluated example combination)
     extra_combos: int = 0
     combos_per_character: int = 8
+    combo_sizes: tuple[int, ...] = (2, 3)  # poses per drawn combination (1 only with an amplitude range)
+    combo_odds: tuple[float, ...] = (1 / 3, 2 / 3)  # how often each size is drawn (checked when drawing)
+    # each drawn pose's angles scaled by a factor drawn in this range; (1, 1): the vocabulary's angles. (0.3, 1.3)
+    # read the example amplitudes better on validation (docs/history.md, eleventh session)
+    combo_amplitude: tuple[float, float] = (1.0, 1.0)
     edge: float = 0.0  # weight of the neighbour term: error of neighbours' relative positions (mm)
     edge_rings: int = 3  # a vertex's partner in that term is within this many edges
     # weight of the translation's mean length (mm) in the loss: at r = 1 a turn about the vertex's own axis plus a

@@ -5,6 +5,7 @@ import dataclasses
 from collections import Counter
 
 import numpy as np
+import pytest
 import torch
 
 from latent_model.corpus.poses import COMBO_POSES, POSES, get_pose
@@ -43,6 +44,8 @@ def test_drawn_amplitudes_scale_each_poses_angles_within_the_range():
         assert [j.bone for j in p.joints] == [j.bone for j in rotations]
         scales += [j.degrees / r.degrees for j, r in zip(p.joints, rotations)]
     assert 0.3 - 1e-9 <= min(scales) < 0.45 and 1.15 < max(scales) <= 1.3 + 1e-9
+    with pytest.raises(ValueError, match="combo_odds"):
+        draw_combinations(BODY_SINGLES, 5, np.random.default_rng(5), sizes=(1, 2, 3), odds=(0.5, 0.5))
     # without amplitudes a lone pose is no combination
     assert all(len(p.components) >= 2 for p in draw_combinations(BODY_SINGLES, 30, np.random.default_rng(5),
                                                                  sizes=(1, 2), odds=(0.5, 0.5)))

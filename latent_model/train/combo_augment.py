@@ -50,6 +50,9 @@ def draw_combinations(singles: Sequence[str], n: int, rng: np.random.Generator, 
     combination, none sharing two poses with a held-out example combination; with `amplitude` (lowest, highest),
     each pose's angles are scaled by a factor drawn uniformly in it (size 1 then gives a single pose at another
     amplitude)."""
+    if len(sizes) != len(odds) or abs(sum(odds) - 1) > 1e-6:
+        raise ValueError(f"combination odds {tuple(odds)} must give one probability per size in {tuple(sizes)}, "
+                         "adding up to 1 (MotionDecoderConfig.combo_sizes / combo_odds)")
     held = held_out_combinations()
     corpus = {frozenset(get_pose(p).components) for p in COMBO_POSES}
     order = {s: k for k, s in enumerate(singles)}
