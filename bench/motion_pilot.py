@@ -59,7 +59,7 @@ def main() -> None:
                          "body poses (train/combo_augment.py)")
     ap.add_argument("--combos-per-character", type=int, default=8)
     ap.add_argument("--combo-sizes", default="2,3", help="poses per drawn combination (1: a single pose)")
-    ap.add_argument("--combo-odds", default="", help="how often each size is drawn (default: as combo_augment's)")
+    ap.add_argument("--combo-odds", default="", help="how often each size is drawn (default: combo_augment's, for 2,3)")
     ap.add_argument("--combo-amplitude", default="", help="lowest,highest: each pose's angles scaled by a drawn factor")
     ap.add_argument("--combos-cache", help="keep the drawn combinations' states in this pickle (and reuse them when "
                     "present: same corpus, encoder and --extra-combos / --combos-per-character only)")
@@ -118,16 +118,13 @@ def main() -> None:
         table.add(drawn)
     combos = None
     if args.extra_combos and not args.load:
-        from latent_model.train.combo_augment import extra_combinations
+        from latent_model.train.combo_augment import SIZE_ODDS, extra_combinations
 
         combos = _load_drawn(args.combos_cache) if args.combos_cache and Path(args.combos_cache).exists() else None
         if combos is None:
             singles = tuple(p for p in poses if not POSES[p].is_combo)
-            from latent_model.train.combo_augment import SIZE_ODDS
-
             sizes = [int(x) for x in args.combo_sizes.split(",")]
-            odds = ([float(x) for x in args.combo_odds.split(",")] if args.combo_odds
-                    else SIZE_ODDS if len(sizes) == 2 else [1 / len(sizes)] * len(sizes))
+            odds = [float(x) for x in args.combo_odds.split(",")] if args.combo_odds else SIZE_ODDS
             amplitude = tuple(float(x) for x in args.combo_amplitude.split(",")) if args.combo_amplitude else None
             combos = extra_combinations(model, c, train, singles, args.extra_combos, args.combos_per_character,
                                         seed=0, device=torch.device("cpu"), sizes=sizes, odds=odds,
@@ -165,8 +162,7 @@ def main() -> None:
         decoder.load_state_dict(torch.load(args.load))
     else:
         train_motion_decoder(decoder, c, cache, table, train, poses, cfg, seed=0, validate=validate,
-                             validate_every=max(args.steps // 3, 1), extra=drawn,
-                                       extra_poses=combos)
+                             validate_every=max(args.steps // 3, 1), extra=drawn, extra_poses=combos)
         print(f"trained {args.steps} steps in {time.perf_counter() - t:.0f} s")
     n_v = len(cache.get(val[0])[0])
     rigidifiers: dict[int, object] = {}

@@ -46,6 +46,9 @@ def test_drawn_amplitudes_scale_each_poses_angles_within_the_range():
     assert 0.3 - 1e-9 <= min(scales) < 0.45 and 1.15 < max(scales) <= 1.3 + 1e-9
     with pytest.raises(ValueError, match="combo_odds"):
         draw_combinations(BODY_SINGLES, 5, np.random.default_rng(5), sizes=(1, 2, 3), odds=(0.5, 0.5))
+    # (1, 1), the config's default, is the vocabulary's angles: the same draws as none
+    assert ([p.name for p in draw_combinations(BODY_SINGLES, 20, np.random.default_rng(5), amplitude=(1.0, 1.0))]
+            == [p.name for p in draw_combinations(BODY_SINGLES, 20, np.random.default_rng(5))])
     # without amplitudes a lone pose is no combination
     assert all(len(p.components) >= 2 for p in draw_combinations(BODY_SINGLES, 30, np.random.default_rng(5),
                                                                  sizes=(1, 2), odds=(0.5, 0.5)))

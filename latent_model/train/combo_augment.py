@@ -49,10 +49,12 @@ def draw_combinations(singles: Sequence[str], n: int, rng: np.random.Generator, 
     """`n` distinct combinations of `sizes` of `singles` (in their order), no two acting on one bone, none a corpus
     combination, none sharing two poses with a held-out example combination; with `amplitude` (lowest, highest),
     each pose's angles are scaled by a factor drawn uniformly in it (size 1 then gives a single pose at another
-    amplitude)."""
+    amplitude); (1, 1) or None: the vocabulary's angles."""
     if len(sizes) != len(odds) or abs(sum(odds) - 1) > 1e-6:
         raise ValueError(f"combination odds {tuple(odds)} must give one probability per size in {tuple(sizes)}, "
                          "adding up to 1 (MotionDecoderConfig.combo_sizes / combo_odds)")
+    if amplitude is not None and tuple(amplitude) == (1.0, 1.0):  # the vocabulary's angles (the config's default)
+        amplitude = None
     held = held_out_combinations()
     corpus = {frozenset(get_pose(p).components) for p in COMBO_POSES}
     order = {s: k for k, s in enumerate(singles)}

@@ -268,8 +268,7 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
         singles = tuple(p for p in poses if not get_pose(p).is_combo)
         combos = extra_combinations(model, corpus, train_ids, singles, m.extra_combos, m.combos_per_character,
                                     preset.train.seed + 7000, device, workers=min(2, os.cpu_count() or 1), log=log,
-                                    sizes=m.combo_sizes, odds=m.combo_odds,
-                                    amplitude=None if tuple(m.combo_amplitude) == (1.0, 1.0) else m.combo_amplitude)
+                                    sizes=m.combo_sizes, odds=m.combo_odds, amplitude=m.combo_amplitude)
         table.add_poses(combos)
     fitted = train_ids + (extra.ids if extra else [])
     dec.delta_scale.fill_(table.scale)
