@@ -110,18 +110,26 @@ def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...]
                      device, workers: int = 2, log=print) -> ExtraCharacters:
     """Every training person of `corpus` (its bind character among `train_ids`) in `per_person` random rests,
     posed in `poses`, with the frozen encoder's latent means of every state."""
-    from latent_model.encoding import encode_sample_sets
-
     rng = np.random.default_rng([seed, 7])
     persons = [i for i in train_ids if corpus.identities[i].rest == "bind"]
-    jobs, person, rests = [], [], []
+    stands, seeds = [], []
     for n, i in enumerate(persons):
         for k, rest in enumerate(random_rests(rng, per_person, prefix=f"drawn{n:03d}_")):
-            spec = asdict(corpus.identities[i])
-            jobs.append((spec, asdict(rest), tuple(poses), asdict(corpus.config.sdf),
-                         corpus.body_faces.astype(np.int64), [seed, n, k]))
-            person.append(i)
-            rests.append(rest)
+            stands.append((i, rest))
+            seeds.append([seed, n, k])
+    return characters_in_rests(model, corpus, stands, poses, seeds, device, workers, log)
+
+
+def characters_in_rests(model, corpus, stands: list[tuple[int, RestConfig]], poses: tuple[str, ...], seeds: list,
+                        device, workers: int = 2, log=print) -> ExtraCharacters:
+    """Each (corpus character whose person it is, rest configuration) of `stands` posed in `poses` through the
+    corpus's generator, SDF-sampled (seeds[n]: the n-th one's sampling seed, anything `SeedSequence` takes) and
+    encoded by the frozen encoder. Any rest: also a held-out rest's configuration on validation persons
+    (`bench/rest_transfer.py --rest`)."""
+    from latent_model.encoding import encode_sample_sets
+
+    jobs = [(asdict(corpus.identities[i]), asdict(rest), tuple(poses), asdict(corpus.config.sdf),
+             corpus.body_faces.astype(np.int64), seeds[n]) for n, (i, rest) in enumerate(stands)]
     t0 = time.perf_counter()
     out = generate(_character, jobs, workers, lambda k: log(f"extra rests: {k}/{len(jobs)} characters posed and "
                                                               f"sampled ({time.perf_counter() - t0:.0f} s)"))
@@ -132,8 +140,7 @@ def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...]
     log(f"extra rests: {len(out)} characters encoded ({time.perf_counter() - t0:.0f} s)")
     first = corpus.manifest["n_identities"]
     return ExtraCharacters(
-        ids=list(range(first, first + len(out))), person=person, rests=rests, poses=tuple(poses),
-        neutral=np.stack([r[0] for r in out]), normals=np.stack([r[1] for r in out]),
+        ids=list(range(first, first + len(out))), person=[i for i, _ in stands], rests=[r for _, r in stands],
+        poses=tuple(poses), neutral=np.stack([r[0] for r in out]), normals=np.stack([r[1] for r in out]),
         posed=np.stack([r[2] for r in out]), mu_neutral=mu[:, 0], mu_posed=mu[:, 1:],
         features=[SurfaceFeatures(*r[5], {}) for r in out])
-
