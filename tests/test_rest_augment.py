@@ -102,3 +102,28 @@ def test_a_preset_stored_before_a_decoder_training_option_reads_as_trained_witho
     assert getattr(Preset.from_dict(d).model.motion, name) == value
     del d["model"]["motion"][name]
     assert getattr(Preset.from_dict(d).model.motion, name) == 0
+
+
+def test_a_person_stood_in_a_named_rest_is_that_rests_character(tiny_corpus):
+    """characters_in_rests (bench/rest_transfer.py --rest): a person stood in a corpus rest configuration has that
+    corpus character's neutral and posed geometry, and the encoder's latents of its own samples."""
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+    from latent_model.train.rest_augment import characters_in_rests
+
+    c = tiny_corpus
+    j = next(i for i in c.split_indices("train") if c.identities[i].rest != "bind")
+    person = next(i for i in c.split_indices("train")
+                  if c.identities[i].rest == "bind" and c.identities[i].person_id == c.identities[j].person_id)
+    pose = next(p for p in c.poses if p.startswith("elbow"))
+    torch.manual_seed(0)
+    model = LatentReRig(preset("tiny").model).eval()
+    stands = [(person, get_rest(c.identities[j].rest)), (person, REST_CONFIGS["tpose"])]
+    out = characters_in_rests(model, c, stands, (pose,), [[1, 0], [1, 1]], torch.device("cpu"), workers=1,
+                              log=lambda m: None)
+    assert out.person == [person, person] and [r.name for r in out.rests] == [c.identities[j].rest, "tpose"]
+    np.testing.assert_allclose(out.neutral[0], c.vertices(c.state(j, None, "neutral")), atol=1e-5)
+    np.testing.assert_allclose(out.target(out.ids[0], pose), c.vertices(c.state(j, pose, FINAL)), atol=1e-5)
+    assert np.abs(out.neutral[1] - out.neutral[0]).max() > 0.05  # the T-pose raises the arms
+    assert out.mu_neutral.shape == (2, model.cfg.latent) and out.mu_posed.shape == (2, 1, model.cfg.latent)
+    assert not np.allclose(out.mu_neutral[1], out.mu_neutral[0])
