@@ -7,8 +7,9 @@ corpus v4's held-out rests, the baseline the decoder issue must beat.
                                   [--rest NAME[,NAME...]] [--strategy S]
 
 `--rest`: the split's persons stand in these rest configurations (corpus/rests.py, any split's) instead of the
-corpus's own characters, posed and encoded on the fly (`train/rest_augment.characters_in_rests`; about 30 s a rest for 8 persons on 2 workers): a
-held-out rest's configuration on the validation persons is how a design is judged on it without the test ones.
+corpus's own characters, posed and encoded on the fly (`train/rest_augment.characters_in_rests`; about 30 s a rest
+for 8 persons on 2 workers): a held-out rest's configuration on the validation persons is how a design is judged on
+it without the test ones.
 """
 from __future__ import annotations
 
