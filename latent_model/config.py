@@ -123,6 +123,9 @@ class MotionDecoderConfig:
     world_penalty: float = 0.0
     delta_dims: int = 0  # the delta's direction is read through this many whitened principal components (0: in full)
     delta_noise: float = 0.0  # std of the noise on them (or on the unit-RMS direction) in training
+    # the condition also says whether the delta is a pose's mean over the training characters or one character's
+    # (nn/motion_decoder.MotionDecoder.averaged_code): a mean is exact, one character's carries its identity and noise
+    averaged_input: bool = False
 
     def __post_init__(self) -> None:
         for k in (*self.kinds, *self.trained_kinds):

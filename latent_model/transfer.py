@@ -303,11 +303,10 @@ class Transfer:
         7-8x the median on the slider), while mixed motions are continuous. Each pose's noise gate weighs its
         motion; the reported gate and signal are the weighted mean of the poses'."""
         poses, weights = ([a], [1.0]) if b is None else ([a, b], [1.0 - blend, blend])
-        deltas = [x for x, _ in poses]
         gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
-        conditions = [self._condition(x, 1.0, self.model.cfg.motion.reads_as(kind)) for x in deltas]
+        conditions = [(*self._condition(x, 1.0, self.model.cfg.motion.reads_as(kind)), n) for x, n in poses]
         if self.model.cfg.motion.refit_radius <= 0:  # the decoder's own parameters scaled (the model before refits)
             motions = [self._motion(mesh, *c, magnitude) for c in conditions]
             v = torch.from_numpy(mesh.vertices)[None].to(self.device)
@@ -336,16 +335,17 @@ class Transfer:
         fitted = [self._fitted_motion(mesh, *conditions[i]) for i in active]
         return apply_motion(v, mix_motions(fitted, [scales[i] for i in active]))[0].cpu().numpy()
 
-    def _fitted_motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor) -> RigidMotion:
+    def _fitted_motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,
+                       averaged: int = 1) -> RigidMotion:
         """The motion the surface makes under the decoder's prediction at the delta's own length (`local_motion_fit`
         over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
         cfg, dev = self.model.cfg.motion, self.device
         fits = mesh.cache("motion_fits", dev, dict)
-        key = (direction.cpu().numpy().tobytes(), float(r), int(k), cfg.refit_radius, cfg.rigid_parts, cfg.repivot,
+        key = (direction.cpu().numpy().tobytes(), float(r), int(k), averaged, cfg.refit_radius, cfg.rigid_parts, cfg.repivot,
                cfg.rigid_prior, cfg.rigid_anchor)
         if key not in fits:
             v = torch.from_numpy(mesh.vertices)[None].to(dev)
-            moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k))
+            moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k, averaged))
             average = mesh.cache(f"motion_fit_ball_{cfg.refit_radius:g}", dev,
                                  lambda: heat_averager(mesh.vertices, mesh.faces, cfg.refit_radius))
             if len(fits) >= 16:  # a few poses at a time in the explorer; an evaluation walks through many
@@ -363,9 +363,9 @@ class Transfer:
                           lambda: part_rigidifier(mesh.surface.coords, prior=cfg.rigid_prior, anchor=cfg.rigid_anchor))
 
     def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,
-                magnitude: float = 1.0) -> RigidMotion:
-        """The motion decoder's per-vertex motion of the mesh for a delta of length r scaled by `magnitude` (its
-        surface features read once per mesh)."""
+                averaged: int = 1, magnitude: float = 1.0) -> RigidMotion:
+        """The motion decoder's per-vertex motion of the mesh for a delta of length r scaled by `magnitude`, the
+        delta averaging `averaged` characters' deltas (its surface features read once per mesh)."""
         dec, dev = self.model.motion_decoder, self.device
 
         def tensors() -> dict[str, torch.Tensor]:
@@ -379,4 +379,5 @@ class Transfer:
                                                                           self.model.cfg.motion.smooth))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
         return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r * magnitude / dec.delta_scale, kind=k,
-                                smooth=smooth, repivot=self.model.cfg.motion.repivot, r_ref=r / dec.delta_scale)
+                                smooth=smooth, repivot=self.model.cfg.motion.repivot, r_ref=r / dec.delta_scale,
+                                averaged=torch.tensor([float(averaged)], device=dev))

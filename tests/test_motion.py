@@ -168,9 +168,10 @@ def test_training_conditions_on_another_characters_delta_as_often_as_other_prob_
     calls = []
     original = motion.pair_inputs
 
-    def spy(cache, table, i, pose, delta, idx=None):
+    def spy(cache, table, i, pose, delta, idx=None, averaged=None):
         calls.append((table, i, pose, delta))
-        return original(cache, table, i, pose, delta, idx)
+        assert averaged == 1  # one character's delta, never a mean: the decoder is told so
+        return original(cache, table, i, pose, delta, idx, averaged)
 
     monkeypatch.setattr(motion, "pair_inputs", spy)
     p = preset("tiny")
@@ -187,6 +188,56 @@ def test_training_conditions_on_another_characters_delta_as_often_as_other_prob_
         assert len(owner) == 1  # a training character's own delta of this pose, never a mean
         whose.append(owner[0] == i)
     assert all(whose) if other_prob == 0 else sum(whose) < 0.6 * len(whose)
+
+
+def test_the_decoder_is_told_whether_it_reads_a_mean_or_one_characters_delta(tiny_corpus, tmp_path, monkeypatch):
+    """With `averaged_input`, training tells the decoder how many characters each condition averages (the pose's
+    mean: every training character; another's or its own delta: 1), and Transfer does the same at inference: the
+    mean strategy's prediction is the decoder's at the bank's count, and the same delta given as an example pair's
+    (one character's) predicts differently. Without it (the shipped decoder) the count is not read at all."""
+    import dataclasses
+
+    import latent_model.train.motion as motion
+    from latent_model.bank import build_bank
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+    from latent_model.transfer import Transfer
+
+    seen = []
+    original = motion.pair_inputs
+
+    def spy(cache, table, i, pose, delta, idx=None, averaged=None):
+        seen.append((averaged, delta is table.mean[pose]))
+        return original(cache, table, i, pose, delta, idx, averaged)
+
+    monkeypatch.setattr(motion, "pair_inputs", spy)
+    p = preset("tiny")
+    m = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=20, batch=4, vertices=64,
+                            mean_prob=0.5, other_prob=0.2, averaged_input=True)
+    p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=m))
+    torch.manual_seed(0)
+    model = LatentReRig(p.model).eval()
+    motion.train_motion_phase(model, p, tiny_corpus, tmp_path / "run", torch.device("cpu"), progress=False)
+    n_train = len(tiny_corpus.split_indices("train"))
+    assert {a for a, is_mean in seen if is_mean} == {n_train} and {a for a, is_mean in seen if not is_mean} == {1}
+    assert 0.3 < np.mean([is_mean for _, is_mean in seen]) < 0.7
+    dec = model.motion_decoder
+    assert float(dec.averaged_ref) == n_train
+    with torch.no_grad():  # the count moves the output of a decoder that reads it
+        for prm in dec.film.parameters():
+            prm.add_(torch.randn_like(prm) * 0.05)
+    bank = dataclasses.replace(build_bank(model, tiny_corpus, progress=False), noise_floor=0.0)
+    t = Transfer(model, bank, tiny_corpus.config.sdf.k)
+    target = tiny_corpus.split_indices("test")[0]
+    mesh = t.prepare(tiny_corpus.vertices(tiny_corpus.state(target, None, "neutral")), tiny_corpus.faces)
+    pose = next(q for q in tiny_corpus.poses if q.startswith("elbow"))
+    counts = []
+    real = dec.rigid_motion
+    monkeypatch.setattr(dec, "rigid_motion", lambda *a, **k: counts.append(float(k["averaged"][0])) or real(*a, **k))
+    as_mean = t.predict(mesh, pose, "mean_pose_delta")
+    as_one = t.predict(mesh, None, delta=t.delta(mesh, pose, "mean_pose_delta")[0])
+    assert counts[0] == t.averaged(pose, "mean_pose_delta", "neutral_to_pose") == n_train and counts[-1] == 1.0
+    assert np.abs(as_mean - as_one).max() > 1e-5
 
 
 def test_conditioning_probabilities_must_add_up_to_at_most_one():

@@ -68,7 +68,8 @@ class MotionDecoder(nn.Module):
 
     def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
                  world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0, local_inputs: bool = True,
-                 delta_dims: int = 0, delta_noise: float = 0.0, limb_direction: bool = False) -> None:
+                 delta_dims: int = 0, delta_noise: float = 0.0, limb_direction: bool = False,
+                 averaged_input: bool = False) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
@@ -84,7 +85,14 @@ class MotionDecoder(nn.Module):
         if delta_dims:
             self.register_buffer("delta_mean", torch.zeros(latent))
             self.register_buffer("delta_basis", torch.zeros(delta_dims, latent))
-        self.cond = mlp([mu_dims + (delta_dims or latent) + 16, cond, cond], final_act=True)
+        # averaged_input: the condition also says how many characters' deltas the delta averages (a pose's mean over
+        # the training characters, or one character's: the oracle, the nearest identity, an example pair), read as
+        # log(n) / log(averaged_ref) in [0, 1]. A mean is exact where one character's delta carries its identity and
+        # sampling noise; told which it reads, the decoder need not make one mapping serve both
+        self.averaged_input = averaged_input
+        if averaged_input:
+            self.register_buffer("averaged_ref", torch.ones(()))  # the training characters' count (train/motion.py)
+        self.cond = mlp([mu_dims + (delta_dims or latent) + 16 + int(averaged_input), cond, cond], final_act=True)
         # local_inputs: also the normal and the medial offset (they differ between neighbours: a part's
         # vertices then get different motions); without, the motion is a smooth function of where on the body
         self.local_inputs = local_inputs
@@ -132,9 +140,23 @@ class MotionDecoder(nn.Module):
             z = z + torch.randn_like(z) * self.mu_noise
         return z
 
-    def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
-        """(B, Z), (B, Z), (B,) -> (B, C)."""
-        return self.cond(torch.cat([self.mu_code(mu_src), self.delta_code(delta_dir), self.kind_emb(kind)], dim=-1))
+    def averaged_code(self, averaged: torch.Tensor | None, batch: int, like: torch.Tensor) -> torch.Tensor:
+        """(B,) counts of characters a delta averages (None: one each) -> (B, 1) log(n) / log(averaged_ref) in
+        [0, 1], times 2 minus 1 (unit size either way)."""
+        if averaged is None:
+            return torch.full((batch, 1), -1.0, dtype=like.dtype, device=like.device)
+        n = torch.as_tensor(averaged, dtype=like.dtype, device=like.device).reshape(batch, 1).clamp(min=1.0)
+        a = torch.log(n) / torch.log(self.averaged_ref.clamp(min=2.0))
+        return a.clamp(0.0, 1.0) * 2.0 - 1.0
+
+    def condition(self, mu_src: torch.Tensor, delta_dir: torch.Tensor, kind: torch.Tensor,
+                  averaged: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, Z), (B, Z), (B,) -> (B, C). `averaged` (B,): how many characters' deltas each delta averages (read
+        only by a decoder built with averaged_input; None: one character's)."""
+        parts = [self.mu_code(mu_src), self.delta_code(delta_dir), self.kind_emb(kind)]
+        if self.averaged_input:
+            parts.append(self.averaged_code(averaged, len(mu_src), mu_src))
+        return self.cond(torch.cat(parts, dim=-1))
 
     def motion(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor, medial_offset: torch.Tensor,
                c: torch.Tensor) -> torch.Tensor:
@@ -157,29 +179,30 @@ class MotionDecoder(nn.Module):
     def forward(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                 medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
                 kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None, repivot: float = 0.0,
-                r_ref: torch.Tensor | None = None) -> torch.Tensor:
+                r_ref: torch.Tensor | None = None, averaged: torch.Tensor | None = None) -> torch.Tensor:
         """v_src, normals, medial (B, N, 3); coords (B, N, 6); frames (B, N, 3, 3); mu_src, delta_dir (B, Z);
         r (B,) the delta's length in mean training lengths; kind (B,). -> V_hat (B, N, 3).
         `c`: a cached `condition(...)` (the explorer's sliders change r only). `smooth`: on a whole mesh, a
         function averaging per-vertex (B, N, k) values over surface neighbourhoods (`surface_smoother`): the
         rotations, pivots and translations are averaged before they act, so a part's vertices share one motion.
         `repivot` > 0: each vertex's translation is absorbed into its pivot (`absorb_translation`, that damping) at
-        the delta's own length `r_ref` (B,) (default r: r is r_ref times the magnitude), then scaled to r."""
+        the delta's own length `r_ref` (B,) (default r: r is r_ref times the magnitude), then scaled to r.
+        `averaged` (B,): how many characters' deltas the delta averages (`condition`)."""
         return apply_motion(v_src, self.rigid_motion(v_src, coords, frames, normals, medial, mu_src, delta_dir, r, kind,
-                                                     c, smooth, repivot, r_ref))
+                                                     c, smooth, repivot, r_ref, averaged=averaged))
 
     def rigid_motion(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
                      medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
                      kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None,
                      repivot: float = 0.0, r_ref: torch.Tensor | None = None,
-                     outputs: torch.Tensor | None = None) -> "RigidMotion":
+                     outputs: torch.Tensor | None = None, averaged: torch.Tensor | None = None) -> "RigidMotion":
         """The per-vertex motion in world axes (arguments as `forward`), before it acts. Rotation and translation
         are formed per unit r, smoothed (linear, so it commutes with r), optionally re-pivoted at r_ref (the
         motion there is unchanged), then scaled by r. `outputs`: `motion(...)` already computed (training
         penalises parts of it)."""
         if outputs is None:
             if c is None:
-                c = self.condition(mu_src, delta_dir, kind)
+                c = self.condition(mu_src, delta_dir, kind, averaged)
             outputs = self.motion(coords, frames, normals, medial - v_src, c)
         m = outputs
         to_world = lambda x: torch.einsum("bnij,bnj->bni", frames, x)  # noqa: E731  F x

@@ -75,6 +75,7 @@ class DeltaTable:
         self.mu_neutral = {i: mu[c.row(c.state(i, None, "neutral"))] for i in ids}
         self.delta = {(i, p): mu[c.row(c.state(i, p, FINAL))] - self.mu_neutral[i] for i in ids for p in poses}
         self.mean = {p: np.mean([self.delta[(i, p)] for i in train_ids], axis=0) for p in poses}
+        self.mean_count = {p: len(train_ids) for p in poses}  # characters each mean averages
         self.scale = float(np.mean([np.linalg.norm(self.delta[(i, p)]) for i in train_ids for p in poses]))
 
     def add(self, extra: "ExtraCharacters") -> None:
@@ -91,7 +92,8 @@ class DeltaTable:
         for (i, p), mu in extra.mu.items():
             self.delta[(i, p)] = mu - self.mu_neutral[i]
         for p in extra.poses:
-            self.mean[p] = np.mean([self.delta[pair] for pair in extra.pairs if pair[1] == p], axis=0)
+            posed = [self.delta[pair] for pair in extra.pairs if pair[1] == p]
+            self.mean[p], self.mean_count[p] = np.mean(posed, axis=0), len(posed)
 
     def directions(self, ids: list[int], poses: tuple[str, ...]) -> np.ndarray:
         """(len(ids) * len(poses), Z) unit directions of the characters' own deltas."""
@@ -126,14 +128,17 @@ def _batch_tensors(rows: list[dict]) -> dict[str, torch.Tensor]:
 
 
 def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, delta: np.ndarray,
-                idx: np.ndarray | None = None) -> dict:
-    """Decoder inputs of character i's neutral (all vertices, or `idx`) with condition `delta`."""
+                idx: np.ndarray | None = None, averaged: int | None = None) -> dict:
+    """Decoder inputs of character i's neutral (all vertices, or `idx`) with condition `delta`, which averages
+    the deltas of `averaged` characters (default: the pose's mean's count if `delta` is that mean, else 1)."""
     v, n, sf = cache.get(i)
     sel = slice(None) if idx is None else idx
     r = np.linalg.norm(delta)
     return {"v_src": v[sel], "coords": sf.coords[sel], "frames": sf.frames[sel], "normals": n[sel],
             "medial": sf.medial[sel], "mu_src": table.mu_neutral[i], "delta_dir": delta / max(r, 1e-12),
-            "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose"))}
+            "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose")),
+            "averaged": np.float32(averaged if averaged is not None
+                                   else table.mean_count[pose] if delta is table.mean.get(pose) else 1)}
 
 
 def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repivot: float = 0.0,
@@ -147,7 +152,7 @@ def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repiv
     with torch.no_grad():
         m = decoder.rigid_motion(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
                                  b["delta_dir"], b["r"] * magnitude, b["kind"], smooth=smooth, repivot=repivot,
-                                 r_ref=b["r"])
+                                 r_ref=b["r"], averaged=b["averaged"])
         out = (apply_motion if rigid is None else rigid)(b["v_src"], m)
     decoder.train(was)
     return out[0].numpy()
@@ -190,15 +195,15 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
                 idx = np.concatenate([idx, sample_neighbours(rng, reach, idx[:half])])
             u = rng.random()
             if u < cfg.mean_prob:
-                delta = table.mean[p]
+                delta, averaged = table.mean[p], table.mean_count[p]
             elif u < cfg.mean_prob + cfg.other_prob:  # another character's delta of the pose, as transfer reads one
-                delta = table.delta[(posed_in[p][rng.integers(len(posed_in[p]))], p)]
+                delta, averaged = table.delta[(posed_in[p][rng.integers(len(posed_in[p]))], p)], 1
             else:
-                delta = table.delta[(i, p)]
-            rows.append(pair_inputs(cache, table, i, p, delta, idx))
+                delta, averaged = table.delta[(i, p)], 1
+            rows.append(pair_inputs(cache, table, i, p, delta, idx, averaged))
             targets.append(tgt[idx])
         b = _batch_tensors(rows)
-        c = decoder.condition(b["mu_src"], b["delta_dir"], b["kind"])
+        c = decoder.condition(b["mu_src"], b["delta_dir"], b["kind"], b["averaged"])
         out = decoder.motion(b["coords"], b["frames"], b["normals"], b["medial"] - b["v_src"], c)
         motion = decoder.rigid_motion(b["v_src"], b["coords"], b["frames"], b["normals"], b["medial"], b["mu_src"],
                                       b["delta_dir"], b["r"], b["kind"], outputs=out)
@@ -272,6 +277,8 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
         table.add_poses(combos)
     fitted = train_ids + (extra.ids if extra else [])
     dec.delta_scale.fill_(table.scale)
+    if dec.averaged_input:
+        dec.averaged_ref.fill_(float(len(train_ids)))  # the bank's means average this many characters
     dec.set_mu_basis(torch.from_numpy(np.stack([table.mu_neutral[i] for i in fitted])).float())
     dec.set_delta_basis(torch.from_numpy(table.directions(fitted, poses)).float())
     dec.train()
