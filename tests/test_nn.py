@@ -203,7 +203,8 @@ def test_format_1_checkpoints_upgrade_on_load_and_unshipped_designs_are_refused(
 
 
 def test_presets_are_the_shipped_design_at_three_sizes():
-    """Defaults are the shipped model; tiny and paper change sizes only (never the design)."""
+    """Defaults are the shipped model; tiny and paper change sizes only (never the design; tiny trains decoder v2
+    without drawn combinations, which would dominate the tests' time)."""
     from latent_model.config import LossWeights, ModelConfig, TrainConfig
 
     std, tiny, paper = preset("standard"), preset("tiny"), preset("paper")

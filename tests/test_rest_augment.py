@@ -88,10 +88,11 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
                for k, i in enumerate(extra.person))
 
 
-@pytest.mark.parametrize("name, value", [("extra_rests", 2), ("extra_combos", 40), ("other_prob", 0.3)])
+@pytest.mark.parametrize("name, value", [("extra_rests", 2), ("extra_combos", 40), ("other_prob", 0.3),
+                                         ("averaged_input", True)])
 def test_a_preset_stored_before_a_decoder_training_option_reads_as_trained_without_it(name, value):
-    """Drawn rests, drawn combinations, another character's delta: a checkpoint's preset from before the option
-    existed was trained without it, whatever the option's default is now."""
+    """Drawn rests, drawn combinations, another character's delta, the averaged count: a checkpoint's preset from
+    before the option existed was trained without it, whatever the option's default is now."""
     import json
 
     from latent_model.config import Preset, preset
