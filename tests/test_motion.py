@@ -514,9 +514,12 @@ def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the
         mesh = t.prepare(c.vertices(c.state(i, sp, sv)), c.faces, sdf_faces=c.body_faces)
         out = t.predict_detail(mesh, key, "mean", kind=kind)
         assert out.predictor == "motion"
-        # the same delta given as an example (read as neutral_to_pose) is the same prediction
+        # the pair kind is read as neutral_to_pose: the same delta given as an example of either kind (one
+        # character's, as the decoder is told) is the same prediction, and as the mean it is told it averages many
         d = t.bank.mean_delta(kind, key)
-        assert np.allclose(t.predict(mesh, None, delta=d), out.raw, atol=1e-6)
+        as_example = t.predict(mesh, None, delta=d, kind=kind)
+        assert np.allclose(as_example, t.predict(mesh, None, delta=d), atol=1e-6)
+        assert not np.allclose(as_example, out.raw, atol=1e-6)
         assert np.linalg.norm(out.raw - mesh.vertices, axis=1).max() > 1e-3
         # on another source (the neutral) the same delta moves other positions: it reads the source's geometry
         other = t.prepare(c.vertices(c.state(i, None, "neutral")), c.faces, sdf_faces=c.body_faces, mu=mesh.mu)
