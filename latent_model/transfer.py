@@ -341,8 +341,8 @@ class Transfer:
         over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
         cfg, dev = self.model.cfg.motion, self.device
         fits = mesh.cache("motion_fits", dev, dict)
-        key = (direction.cpu().numpy().tobytes(), float(r), int(k), averaged, cfg.refit_radius, cfg.rigid_parts, cfg.repivot,
-               cfg.rigid_prior, cfg.rigid_anchor)
+        key = (direction.cpu().numpy().tobytes(), float(r), int(k), averaged, cfg.refit_radius, cfg.rigid_parts,
+               cfg.repivot, cfg.rigid_prior, cfg.rigid_anchor)
         if key not in fits:
             v = torch.from_numpy(mesh.vertices)[None].to(dev)
             moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k, averaged))

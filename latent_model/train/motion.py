@@ -128,17 +128,16 @@ def _batch_tensors(rows: list[dict]) -> dict[str, torch.Tensor]:
 
 
 def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, delta: np.ndarray,
-                idx: np.ndarray | None = None, averaged: int | None = None) -> dict:
+                idx: np.ndarray | None = None, averaged: int = 1) -> dict:
     """Decoder inputs of character i's neutral (all vertices, or `idx`) with condition `delta`, which averages
-    the deltas of `averaged` characters (default: the pose's mean's count if `delta` is that mean, else 1)."""
+    the deltas of `averaged` characters (a pose's mean: `table.mean_count[pose]`)."""
     v, n, sf = cache.get(i)
     sel = slice(None) if idx is None else idx
     r = np.linalg.norm(delta)
     return {"v_src": v[sel], "coords": sf.coords[sel], "frames": sf.frames[sel], "normals": n[sel],
             "medial": sf.medial[sel], "mu_src": table.mu_neutral[i], "delta_dir": delta / max(r, 1e-12),
             "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose")),
-            "averaged": np.float32(averaged if averaged is not None
-                                   else table.mean_count[pose] if delta is table.mean.get(pose) else 1)}
+            "averaged": np.float32(averaged)}
 
 
 def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repivot: float = 0.0,
