@@ -184,6 +184,8 @@ class LossWeights:
     contrast: float = 0.1  # supervised InfoNCE on normalised deltas (separates poses)
     contrast_temperature: float = 0.1  # its temperature
     align: float = 3.0  # alignment: mean 1 - cos of same-pose deltas of different identities
+    # consistency: mean |d_i - d_j|^2 / (|d_i|^2 + |d_j|^2) of same-pose deltas of different identities (lengths agree too)
+    consist: float = 0.0
     mirror: float = 1.0  # laterality: mean max(0, cos) of one character's deltas of a pose and its mirror
     pos: float = 1.0  # vertex RMSE over the batch
     pos_rel: float = 0.02  # per-pair RMSE relative to the pair's own motion (+2 mm)
@@ -262,8 +264,11 @@ class Preset:
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_combos=0))
             if "averaged_input" not in stored:  # stored before the count: its condition has no such input
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, averaged_input=False))
+        loss = _from_dict(LossWeights, d["loss"])
+        if "consist" not in d["loss"]:  # stored before the consistency term: trained without it
+            loss = dataclasses.replace(loss, consist=0.0)
         return Preset(d["name"], CorpusConfig.from_dict(d["corpus"]), model,
-                      _from_dict(TrainConfig, d["train"]), _from_dict(LossWeights, d["loss"]))
+                      _from_dict(TrainConfig, d["train"]), loss)
 
 
 def override(p: Preset, assignments: list[str]) -> Preset:

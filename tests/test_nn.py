@@ -361,6 +361,43 @@ def test_alignment_is_zero_for_parallel_same_pose_deltas_and_ignores_other_poses
     assert x.grad[1, 0] < 0 and x.grad[1, 1] > 0  # descent raises its x share, lowers its y share
 
 
+def test_consistency_costs_length_and_direction_of_same_pose_deltas_only():
+    """Equal same-pose deltas cost 0; parallel ones of different lengths cost (their lengths' difference squared
+    over the sum of squares), which alignment leaves free; scaling every delta leaves it unchanged (no collapse);
+    deltas of different poses never enter; in Phase A's loss when its weight is set."""
+    from latent_model.nn import losses
+
+    d = torch.tensor([[1.0, 0, 0], [1.0, 0, 0], [0, 2.0, 0], [0, 0, 1.0]])
+    assert losses.consistency(d, torch.tensor([0, 0, 1, 2])).item() == pytest.approx(0.0, abs=1e-6)
+    assert losses.consistency(d, torch.tensor([0, 1, 2, 3])).item() == 0.0  # no same-pose pair
+    long = torch.tensor([[1.0, 0, 0], [3.0, 0, 0]])
+    assert losses.consistency(long, torch.tensor([0, 0])).item() == pytest.approx(4.0 / 10.0, abs=1e-6)
+    assert losses.alignment(long, torch.tensor([0, 0])).item() == pytest.approx(0.0, abs=1e-6)
+    assert losses.consistency(5 * long, torch.tensor([0, 0])).item() == pytest.approx(0.4, abs=1e-6)
+    x = torch.tensor([[1.0, 0, 0], [3.0, 0, 0]], requires_grad=True)
+    losses.consistency(x, torch.tensor([0, 0])).backward()
+    assert x.grad[0, 0] < 0 < x.grad[1, 0]  # descent lengthens the short one and shortens the long one
+
+
+def test_phase_a_loss_has_the_consistency_term_when_weighted(tiny_corpus):
+    import dataclasses
+
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+    from latent_model.train.data import PhaseASampler
+    from latent_model.train.phases import PhaseANet
+
+    p = preset("tiny")
+    b = PhaseASampler(tiny_corpus, p, seed=0).sample()
+    torch.manual_seed(0)
+    model = LatentReRig(p.model)
+    on = dataclasses.replace(p, loss=dataclasses.replace(p.loss, consist=1.0))
+    off = dataclasses.replace(p, loss=dataclasses.replace(p.loss, consist=0.0))
+    _, terms = PhaseANet(model, on)(b)
+    assert 0.0 < float(terms["consist"]) <= 2.0
+    assert "consist" not in PhaseANet(model, off)(b)[1]
+
+
 def test_mirror_cosine_penalises_shared_directions_only():
     """A pose's and its mirror's deltas of one character cost their cosine when it is positive:
     parallel 1, orthogonal or opposite 0; the gradient turns them apart."""
@@ -413,3 +450,16 @@ def test_phase_a_batches_bring_mirrors_as_hard_negatives_when_asked(tiny_corpus)
     off = dataclasses.replace(p, train=dataclasses.replace(p.train, a_mirrors=False))
     plain = PhaseASampler(tiny_corpus, off, seed=0)
     assert any(len(sides(plain.sample())) == 1 for _ in range(20))
+
+
+def test_a_preset_stored_before_the_consistency_term_reads_as_trained_without_it():
+    import dataclasses
+    import json
+
+    from latent_model.config import Preset, preset
+
+    p = preset("standard")
+    d = json.loads(json.dumps(dataclasses.replace(p, loss=dataclasses.replace(p.loss, consist=2.5)).to_dict()))
+    assert Preset.from_dict(d).loss.consist == 2.5
+    del d["loss"]["consist"]
+    assert Preset.from_dict(d).loss.consist == 0.0

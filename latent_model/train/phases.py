@@ -46,6 +46,8 @@ class PhaseANet(nn.Module):
         t["contrast"] = losses.contrastive(delta[rows], b.pose_label[rows], w.contrast_temperature)
         if w.align:
             t["align"] = losses.alignment(delta[rows], b.pose_label[rows])
+        if w.consist:
+            t["consist"] = losses.consistency(delta[rows], b.pose_label[rows])
         if w.mirror and len(b.mirror_rows):
             m = b.mirror_rows
             t["mirror"] = losses.mirror_cosine(delta[m[:, 0]], delta[m[:, 1]])
