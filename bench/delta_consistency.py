@@ -28,7 +28,8 @@ def mirror(pose: str) -> str | None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", help="default: the shipped model")
-    ap.add_argument("--bank", help="its scale and noise floor (default: the shipped bank)")
+    ap.add_argument("--bank", help="its scale and noise floor (default: the shipped bank; a bank of another model: the "
+                    "scale of the training characters' states encoded here, lengths in the mean's units only)")
     ap.add_argument("--corpus")
     ap.add_argument("--split", default="val", choices=("val", "test"))
     ap.add_argument("--train-persons", type=int, default=40, help="training characters in bind for the pose means")
@@ -36,7 +37,7 @@ def main() -> None:
     import numpy as np
     import torch
 
-    from latent_model.bank import LatentBank
+    from latent_model.bank import LatentBank, model_digest
     from latent_model.checkpoint import load_checkpoint
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.store import Corpus
@@ -53,19 +54,22 @@ def main() -> None:
     poses = sorted({p for b in BROAD for p in (b, mirror(b)) if p and p in corpus.poses})
     t0 = time.perf_counter()
 
-    def deltas(people: list[int]) -> dict[str, np.ndarray]:
-        """pose -> (n, Z) standardised deltas of `people`."""
+    def encoded(people: list[int]) -> np.ndarray:
+        """(1 + poses, n, Z) latents of `people`: neutral, then each pose."""
         states = [corpus.state(i, None, "neutral") for i in people]
         states += [corpus.state(i, p, FINAL) for p in poses for i in people]
-        mu = encode_states(model, corpus, states) / bank.scale
-        n = len(people)
-        return {p: mu[n * (k + 1):n * (k + 2)] - mu[:n] for k, p in enumerate(poses)}
+        return encode_states(model, corpus, states).reshape(len(poses) + 1, len(people), -1)
 
     train = corpus.split_indices("train", "bind")[:args.train_persons]
     held = corpus.split_indices(args.split, "bind")
-    means = {p: d.mean(0) for p, d in deltas(train).items()}
-    own = deltas(held)
-    floor = bank.noise_floor or 1.0
+    mu_train, mu_held = encoded(train), encoded(held)
+    ours = bank.model_digest == model_digest(model)
+    scale = bank.scale if ours else mu_train.reshape(-1, mu_train.shape[-1]).std(0) + 1e-6
+    means = {p: ((mu_train[k + 1] - mu_train[0]) / scale).mean(0) for k, p in enumerate(poses)}
+    own = {p: (mu_held[k + 1] - mu_held[0]) / scale for k, p in enumerate(poses)}
+    floor = bank.noise_floor if ours and bank.noise_floor > 0 else 1.0
+    if not ours:
+        print("the bank is another model's: standardised by the encoded training states, lengths in std units")
     print(f"{args.split}: {len(held)} characters in bind against the mean of {len(train)} training characters "
           f"({time.perf_counter() - t0:.0f} s); lengths in noise floors ({floor:.3f})")
     print(f"{'pose':20s} {'|mean|':>7s} {'cos med':>8s} {'along 10-50-90 %':>18s} {'across':>7s} {'own side':>8s}")

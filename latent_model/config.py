@@ -102,6 +102,10 @@ class MotionDecoderConfig:
     # probability of conditioning it on a random training character's delta of the pose (the rest: its own): what
     # the nearest identity and an example pair give; the own delta alone lets the decoder key on who it is
     other_prob: float = 0.3
+    # of those, the fraction that mixes two random characters' deltas (weights w, 1 - w, w uniform; told as an
+    # effective count 1 / (w^2 + (1 - w)^2)): 112 deltas per pose are few enough for the decoder to learn each
+    # one's quirks, and a new person's delta then reads worse than a training person's
+    other_mix: float = 0.0
     # each training person also stands in this many random rests drawn within the training rests' angle ranges
     # (train/rest_augment.py); 2 read a character's own delta far better in an unseen rest but not the mean delta
     # (validation, docs/history.md), and cost 8 min of Phase B
@@ -262,6 +266,8 @@ class Preset:
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, other_prob=0.0))
             if "extra_combos" not in stored:  # stored before the drawn combinations: the corpus's alone
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_combos=0))
+            if "other_mix" not in stored:  # stored before it: single characters' deltas only
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, other_mix=0.0))
             if "averaged_input" not in stored:  # stored before the count: its condition has no such input
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, averaged_input=False))
         loss = _from_dict(LossWeights, d["loss"])

@@ -240,6 +240,41 @@ def test_the_decoder_is_told_whether_it_reads_a_mean_or_one_characters_delta(tin
     assert np.abs(as_mean - as_one).max() > 1e-5
 
 
+def test_other_characters_deltas_can_be_mixed_in_pairs_told_as_their_effective_count(tiny_corpus, tmp_path,
+                                                                                   monkeypatch):
+    """With `other_mix` 1 every draw of another character's delta is a convex mix w a + (1 - w) b of two training
+    characters' deltas of the pose, told as the effective count 1 / (w^2 + (1 - w)^2) in [1, 2]."""
+    import dataclasses
+
+    import latent_model.train.motion as motion
+    from latent_model.config import preset
+    from latent_model.nn.model import LatentReRig
+
+    seen = []
+    original = motion.pair_inputs
+
+    def spy(cache, table, i, pose, delta, idx=None, averaged=None):
+        seen.append((table, pose, delta, averaged))
+        return original(cache, table, i, pose, delta, idx, averaged)
+
+    monkeypatch.setattr(motion, "pair_inputs", spy)
+    p = preset("tiny")
+    m = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=10, batch=4, vertices=64,
+                            mean_prob=0.0, other_prob=1.0, other_mix=1.0, averaged_input=True)
+    p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=m))
+    torch.manual_seed(0)
+    motion.train_motion_phase(LatentReRig(p.model).eval(), p, tiny_corpus, tmp_path / "run", torch.device("cpu"),
+                              progress=False)
+    assert len(seen) == 40 and all(1.0 <= a <= 2.0 for *_, a in seen)
+    assert len({round(float(a), 6) for *_, a in seen}) > 10  # drawn weights, not one
+    for table, pose, delta, averaged in seen[:8]:
+        singles = np.stack([d for (i, q), d in table.delta.items() if q == pose])
+        # the mix lies on the segment between two characters' deltas, with the weights its count says
+        w = 0.5 + np.sqrt(max(2.0 / averaged - 1.0, 0.0)) / 2.0  # the larger weight
+        best = min(np.abs(w * a + (1 - w) * b - delta).max() for a in singles for b in singles)
+        assert best < 1e-4
+
+
 def test_conditioning_probabilities_must_add_up_to_at_most_one():
     from latent_model.config import MotionDecoderConfig
 

@@ -89,7 +89,7 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
 
 
 @pytest.mark.parametrize("name, value", [("extra_rests", 2), ("extra_combos", 40), ("other_prob", 0.3),
-                                         ("averaged_input", True)])
+                                         ("averaged_input", True), ("other_mix", 0.5)])
 def test_a_preset_stored_before_a_decoder_training_option_reads_as_trained_without_it(name, value):
     """Drawn rests, drawn combinations, another character's delta, the averaged count: a checkpoint's preset from
     before the option existed was trained without it, whatever the option's default is now."""

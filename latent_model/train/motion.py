@@ -196,7 +196,12 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
             if u < cfg.mean_prob:
                 delta, averaged = table.mean[p], table.mean_count[p]
             elif u < cfg.mean_prob + cfg.other_prob:  # another character's delta of the pose, as transfer reads one
-                delta, averaged = table.delta[(posed_in[p][rng.integers(len(posed_in[p]))], p)], 1
+                who = posed_in[p]
+                delta, averaged = table.delta[(who[rng.integers(len(who))], p)], 1
+                if cfg.other_mix and rng.random() < cfg.other_mix:  # or a mix of two: a delta no character gave
+                    w = rng.random()
+                    delta = w * delta + (1.0 - w) * table.delta[(who[rng.integers(len(who))], p)]
+                    averaged = 1.0 / (w * w + (1.0 - w) ** 2)  # the mix's effective count of independent deltas
             else:
                 delta, averaged = table.delta[(i, p)], 1
             rows.append(pair_inputs(cache, table, i, p, delta, idx, averaged))
