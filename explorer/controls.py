@@ -13,6 +13,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QFormLayout, QGroupBox, QHB
 
 from latent_model.types import BLEND_RANGE, MAGNITUDE_RANGE
 
+from explorer.framing import FOCUS_CHOICES, FOCUS_LABELS
 from explorer.results import STRATEGY_LABELS, ViewState
 from explorer.selection import Selection
 from explorer.session import Session
@@ -28,6 +29,9 @@ NO_EXAMPLE = "none: pose A and the conditioning strategy condition the predictio
 EXAMPLE_TIP = ("Open a character's mesh A and the same mesh deformed (A1): the deformation A → A1 is transferred to "
                "the target, scaled by the delta magnitude, in place of pose A")
 BY_EXAMPLE_TIP = "The example pair conditions pose A (clear it to choose a pose)"
+FOCUS_TIP = ("What the views frame. What moves: at each new character or pose, a close-up of the part the pose moves "
+             "when it is small (a face or finger pose), else the whole body. Head / hands: found on the surface of "
+             "any humanoid, in any rest pose")
 
 
 class Controls(QWidget):
@@ -82,6 +86,14 @@ class Controls(QWidget):
         self.wireframe = QCheckBox("Wireframe", disp)
         for w in (self.displacement, self.compare, self.wireframe):
             dl.addWidget(w)
+        self.focus = QComboBox(disp)
+        for name in FOCUS_CHOICES:
+            self.focus.addItem(FOCUS_LABELS[name], name)
+        self.focus.setToolTip(FOCUS_TIP)
+        frame_row = QHBoxLayout()
+        frame_row.addWidget(QLabel("Frame", disp))
+        frame_row.addWidget(self.focus, 1)
+        dl.addLayout(frame_row)
         views = QHBoxLayout()
         for text, which in (("Front", "front"), ("Side", "side"), ("Reset view", "reset")):
             b = QPushButton(text, disp)
@@ -97,7 +109,7 @@ class Controls(QWidget):
         outer.addWidget(disp)
         outer.addStretch(1)
 
-        for w in (self.target, self.pose, self.pose_b, self.strategy, self.identity):
+        for w in (self.target, self.pose, self.pose_b, self.strategy, self.identity, self.focus):
             w.currentIndexChanged.connect(self._emit)
         self.kind.currentIndexChanged.connect(self._kind_changed)
         self.magnitude.valueChanged.connect(self._emit)
@@ -227,7 +239,7 @@ class Controls(QWidget):
                          pose_b=None if pb in ("", NONE_POSE) else pb, blend=self.blend.value() / SLIDER_STEPS,
                          magnitude=self.magnitude.value() / SLIDER_STEPS, strategy=strat,
                          colour=self._colour, compare=self.compare.isChecked(), wireframe=self.wireframe.isChecked(),
-                         example=self._example)
+                         example=self._example, focus=self.focus.currentData())
 
     def show_selection(self, sel: Selection) -> None:
         """Show a selection (the session's: a loaded session, an opened mesh, a reset); emits nothing."""
@@ -253,6 +265,7 @@ class Controls(QWidget):
             self.compare.setChecked(sel.compare)
             self.wireframe.setChecked(sel.wireframe)
             self._example = sel.example
+            self.focus.setCurrentIndex(FOCUS_CHOICES.index(sel.focus))
         finally:
             self._quiet = False
         self._emit(quiet=True)

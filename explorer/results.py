@@ -12,6 +12,7 @@ import numpy as np
 from latent_model.meshio import UserMesh
 from latent_model.types import ColourBy, PairKind
 
+from explorer.framing import Framing
 from explorer.selection import Selection
 
 if TYPE_CHECKING:  # the results only carry a Novelty: importing the Transfer API (torch) is the session's job
@@ -111,6 +112,7 @@ class ViewState:
     seconds: float = 0.0  # time the session took to compute it
     seconds_predict: float = 0.0  # of which inside Transfer.predict
     example: ExamplePair | None = None  # the example pair that conditioned pose A, if one did
+    framing: Framing | None = None  # what the views frame (explorer/framing.py; None: leave the camera alone)
 
     @property
     def target(self) -> str:

@@ -9,6 +9,7 @@ from typing import NamedTuple
 
 from latent_model.atomic import atomic_write_json
 from latent_model.errors import UserFacingError
+from explorer.framing import FOCUS_CHOICES
 from latent_model.types import (COLOURS, PAIR_KINDS, ColourBy, PairKind, Strategy, check_blend, check_choice,
                                  check_magnitude, parse_strategy)
 
@@ -38,6 +39,9 @@ class Selection:
     # an example pair the session holds (its name): its delta conditions pose A instead of the pose's;
     # None = the pose list and the strategy condition it
     example: str | None = None
+    # what the views frame: "auto" (what the pose moves, close up when it is small), "body", "head", "hand_left",
+    # "hand_right" (explorer/framing.py)
+    focus: str = "auto"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -47,7 +51,8 @@ class Selection:
         try:
             return replace(self, blend=check_blend(self.blend), magnitude=check_magnitude(self.magnitude),
                            strategy=parse_strategy(self.strategy), colour=check_choice("colour", self.colour, COLOURS),
-                           kind=check_choice("pair kind", self.kind, PAIR_KINDS))
+                           kind=check_choice("pair kind", self.kind, PAIR_KINDS),
+                           focus=check_choice("focus", self.focus, FOCUS_CHOICES))
         except ValueError as e:
             raise SessionError(str(e)) from None
 

@@ -38,6 +38,7 @@ from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
 from latent_model.types import FINAL, PAIR_KINDS
 
 from explorer.events import Event
+from explorer.framing import frame
 from explorer.example_pair import ExamplePairs, Progress, read_example_steps
 from explorer.results import (ExampleOpened, ExamplePair, Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened,
                               NoiseFloor, PairRef, Predicted, Prediction, ViewState, example_subject)
@@ -344,8 +345,21 @@ class Session:
             p, dt = self._predict(sel, s, prepared, source, truth, example)
             preds.append(p)
             t_dec += dt
+        framing = frame(sel.focus, source, lambda: self._regions(prepared), [truth, preds[0].vertices],
+                        None if example is not None else sel.pose)
         return ViewState(sel, pair, prepared.faces, source, truth, truth_title, preds, time.perf_counter() - t0, t_dec,
-                         example)
+                         example, framing)
+
+    @staticmethod
+    def _regions(prepared) -> dict[str, np.ndarray] | None:
+        """The head and hands of a prepared mesh (its surface features, computed once per mesh), or None when its
+        surface cannot be read as a humanoid's (the body is framed then)."""
+        from latent_model.surface import detail_regions
+
+        try:
+            return detail_regions(prepared.surface.coords)
+        except (ValueError, IndexError, RuntimeError):
+            return None
 
     def export(self, state: ViewState, path: str | Path, which: int = 0) -> Path:
         """Write a prediction in the frame, units and vertex order of its source file."""

@@ -3,7 +3,8 @@ while an example pair conditions the prediction, Example A | Example A1 | Source
 analogy A → A1 as source → prediction, read left to right (there is no ground truth for the example's
 deformation of the target, so its view makes room for the pair).
 
-One shared camera (moving one view moves all), front/side/reset views, wireframe, the prediction
+One shared camera (moving one view moves all), front/side/reset views of what the focus frames (the whole body, or a
+close-up of the head, a hand, or what the pose moves: explorer/framing.py), wireframe, the prediction
 coloured by per-vertex error against the truth (fixed shared range, colour bar) or by displacement
 magnitude. Updates set points/scalars in place (no actor rebuild) so scrubbing stays fast.
 """
@@ -20,6 +21,7 @@ from PySide6.QtWidgets import QHBoxLayout, QWidget
 
 from latent_model.corpus.sdf import vertex_normals
 
+from explorer.framing import Framing
 from explorer.results import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
 from explorer.session import Session
 
@@ -88,6 +90,9 @@ class ViewPanel(QWidget):
         self.wireframe = False
         self.state: ViewState | None = None
         self._camera_set = False
+        self._direction = "front"  # the last of the front/side buttons
+        self.framing: Framing | None = None  # what the camera fits (None: the source's bounds)
+        self._framed: tuple | None = None  # the selection it was framed for (target, kind, pose, example, focus)
         self._n_views = 3  # visible views (titles wrap to their width)
         self._raw_titles: dict[str, str] = {}
 
@@ -210,6 +215,14 @@ class ViewPanel(QWidget):
             dirty.add("truth")
         if rebuilt:
             dirty.add("source")
+        key = (state.target, state.selection.kind, state.selection.pose, state.selection.example,
+               state.selection.focus)
+        if state.framing is not None and (key != self._framed or not self._camera_set):
+            # a new character, pose or focus is framed; scrubbing a slider or switching conditioning keeps the camera
+            self._framed, self.framing = key, state.framing
+            self.set_view("reset", render=False)
+            self._camera_set = True
+            dirty.update(TARGET_VIEWS + EXAMPLE_VIEWS)
         if state.example is not None and state.example is not self._example:
             self._draw_example(state.example)
             dirty.update(EXAMPLE_VIEWS)
@@ -245,19 +258,24 @@ class ViewPanel(QWidget):
 
     # -------------------------------------------------------------- camera, style
     def set_view(self, which: str, render: bool = True) -> None:
-        """front: looking at the character's face (from -Y); side: from its left (+X); reset: fit."""
+        """front: looking at the character's face (from -Y); side: from its left (+X); reset: the current direction.
+        Each fits what the focus frames (`framing`; the whole source without one)."""
         p = self.plotters["source"]
         cam = p.camera
+        if "source" in self._polys:
+            bounds = self.framing.bounds if self.framing is not None else self._polys["source"].bounds
+        else:
+            bounds = (-1.0, 1.0, -1.0, 1.0, -1.0, 1.0)
         if which in ("front", "side"):
-            fp = np.asarray(cam.focal_point)
-            b = self._polys["source"].bounds if "source" in self._polys else (-1, 1, -1, 1, -1, 1)
-            c = np.array([(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, (b[4] + b[5]) / 2]) if "source" in self._polys else fp
+            self._direction = which
+            c = np.array([(bounds[0] + bounds[1]) / 2, (bounds[2] + bounds[3]) / 2, (bounds[4] + bounds[5]) / 2])
             d = np.array([0.0, -1.0, 0.0]) if which == "front" else np.array([1.0, 0.0, 0.0])
             cam.focal_point = tuple(c)
             cam.position = tuple(c + 4.0 * d)
             cam.up = (0.0, 0.0, 1.0)
-        p.reset_camera()
-        cam.zoom(1.35)
+        p.reset_camera(render=False, bounds=bounds)
+        p.renderer.ResetCameraClippingRange()  # fitted to a region: clip by every actor, not by the region alone
+        cam.zoom(1.35 if self.framing is None or self.framing.region == "body" else 1.15)
         if render:
             self.render()
 

@@ -156,3 +156,15 @@ def _name_extremities(points: np.ndarray) -> list[int]:
     feet.sort(key=lambda k: -points[k, 0])
     hands.sort(key=lambda k: -points[k, 0])
     return [int(head), int(hands[0]), int(hands[1]), int(feet[0]), int(feet[1])]
+
+
+# How far (geodesic, over the height) a detail region reaches from its extremity: from the head top over the face
+# (the path runs over the brow and nose) to below the chin (an open jaw moves skin at 0.23 H on anny), a fingertip
+# to the wrist (0.11 H).
+DETAIL_REACH = {"head": 0.24, "hand_left": 0.12, "hand_right": 0.12}
+
+
+def detail_regions(coords: np.ndarray) -> dict[str, np.ndarray]:
+    """(V,) bool masks of the regions of local detail (the head, each hand) from `SurfaceFeatures.coords` (V, 6):
+    located by surface distance from their extremity, so in any rest pose and topology."""
+    return {name: coords[:, 1 + EXTREMITIES.index(name)] < reach for name, reach in DETAIL_REACH.items()}

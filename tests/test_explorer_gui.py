@@ -115,6 +115,40 @@ def test_scrubbing_coalesces(window, qtbot):
     _wait_state(qtbot, window, lambda s: s.selection.magnitude == 1.0)
 
 
+def test_a_face_or_finger_pose_is_framed_close_up_and_the_focus_can_be_pinned(window, qtbot):
+    """Choosing a face pose frames what it moves (the brow) in all views; a slider keeps the camera where it is;
+    a broad pose frames the whole body again; the Frame box pins the head or a hand."""
+    c, v = window.controls, window.views
+    cam = v.plotters["source"].camera
+
+    def look(state) -> tuple[np.ndarray, float]:
+        qtbot.waitUntil(lambda: v.framing == state.framing, timeout=TIMEOUT)
+        return np.array(cam.focal_point), float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
+
+    body_at, body_far = look(_wait_state(qtbot, window, lambda s: s.selection.pose == "elbowBentLf"))
+    c.pose.setCurrentText("browDwLf")
+    st = _wait_state(qtbot, window, lambda s: s.selection.pose == "browDwLf")
+    at, far = look(st)
+    src = st.source
+    height = np.ptp(src[:, 2])
+    assert st.framing.region == "moving" and at[2] > src[:, 2].min() + 0.85 * height  # at the head
+    assert far < 0.5 * body_far  # close up
+    assert all(p.camera is cam or np.allclose(p.camera.position, cam.position) for p in v.plotters.values())
+    c.magnitude.setValue(150)
+    _wait_state(qtbot, window, lambda s: s.selection.magnitude == pytest.approx(1.5))
+    assert np.allclose(cam.focal_point, at) and np.isclose(np.linalg.norm(np.subtract(cam.position, at)), far)
+    c.magnitude.setValue(100)
+    c.focus.setCurrentIndex(c.focus.findData("hand_right"))
+    st = _wait_state(qtbot, window, lambda s: s.selection.focus == "hand_right")
+    hand_at, _ = look(st)
+    assert st.framing.region == "hand_right" and hand_at[0] < -0.3  # the character's right hand is at -X
+    c.focus.setCurrentIndex(c.focus.findData("auto"))
+    c.pose.setCurrentText("elbowBentLf")
+    st = _wait_state(qtbot, window, lambda s: s.selection.pose == "elbowBentLf" and s.selection.focus == "auto")
+    at, far = look(st)
+    assert st.framing.region == "body" and np.allclose(at, body_at, atol=1e-3) and np.isclose(far, body_far, rtol=1e-3)
+
+
 def test_switching_strategy_changes_it(window, qtbot):
     c = window.controls
     c.strategy.setCurrentIndex(1)

@@ -56,7 +56,7 @@ def test_coalescer_under_a_fast_producer():
 
 def test_selection_json_round_trip(tmp_path):
     sel = Selection(target="id014", pose="kneeBentLf", pose_b="elbowBentLf", blend=0.25, magnitude=1.5,
-                    strategy="identity:id003", colour="displacement", compare=True)
+                    strategy="identity:id003", colour="displacement", compare=True, focus="hand_left")
     p = save_session(tmp_path / "s.json", sel, {"mine.obj": "/x/mine.obj"})
     back, meshes, examples = read_session(p)
     assert back == sel and meshes == {"mine.obj": "/x/mine.obj"} and examples == {}
@@ -69,6 +69,9 @@ def test_selection_json_round_trip(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"format": 1, "selection": {"magnitude": 7}}))
     with pytest.raises(SessionError, match="magnitude"):
+        read_session(bad)
+    bad.write_text(json.dumps({"format": 1, "selection": {"focus": "feet"}}))
+    with pytest.raises(SessionError, match="focus 'feet'.*hand_left"):
         read_session(bad)
     bad.write_text("{not json")
     with pytest.raises(SessionError, match="not a readable"):

@@ -1,0 +1,90 @@
+"""What the explorer's views frame (explorer/framing.py) and the detail regions it locates (latent_model/surface.py):
+a face or finger pose is framed close up on what it moves, a broad pose shows the whole body, a pose whose motion is
+zeroed falls back to the region its name moves; the head and hands are found on the surface in any rest."""
+import numpy as np
+import pytest
+
+from explorer.framing import FOCUS_CHOICES, frame, moving_vertices, region_of_pose
+from latent_model.corpus.identities import IdentitySpec
+from latent_model.types import FINAL
+
+PERSON = IdentitySpec("framing", "train", {}, {})
+
+
+@pytest.fixture(scope="module")
+def body(generator):
+    """(neutral (V, 3), its detail regions, {pose: posed (V, 3)}) of one character in bind and in the T-pose."""
+    from latent_model.corpus.poses import POSES
+    from latent_model.surface import detail_regions, surface_features
+
+    out = {}
+    for rest in ("bind", "tpose"):
+        v = generator.neutral(PERSON, rest).astype(np.float32)
+        regions = detail_regions(surface_features(v, generator.faces).coords)
+        posed = {p: getattr(generator.pose(PERSON, POSES[p], rest), FINAL).astype(np.float32)
+                 for p in ("browDwLf", "cornerUpLf", "fingerKnuckleB02Rt", "fistLf", "elbowBentLf", "kneeBentRt")}
+        out[rest] = (v, regions, posed)
+    return out
+
+
+def _inside(bounds, points: np.ndarray) -> float:
+    lo, hi = np.array(bounds[0::2]), np.array(bounds[1::2])
+    return float(np.mean(np.all((points >= lo) & (points <= hi), axis=1)))
+
+
+@pytest.mark.parametrize("rest", ["bind", "tpose"])
+def test_head_and_hands_are_found_on_the_surface_in_any_rest(body, rest):
+    v, regions, posed = body[rest]
+    centre = {k: v[m].mean(axis=0) for k, m in regions.items()}
+    assert centre["head"][2] > v[:, 2].min() + 0.85 * np.ptp(v[:, 2])  # the head is on top
+    assert centre["hand_left"][0] > 0.3 and centre["hand_right"][0] < -0.3  # the character's left is +X
+    height = np.ptp(v[:, 2])
+    assert v[regions["head"], 2].min() > v[:, 2].min() + 0.75 * height  # the head and the neck's top, not the chest
+    for hand in ("hand_left", "hand_right"):
+        assert np.linalg.norm(np.ptp(v[regions[hand]], axis=0)) < 0.2 * height  # a hand, not the forearm
+    # what a face pose moves is in the head, what a finger pose moves in its hand
+    for pose, region in (("browDwLf", "head"), ("cornerUpLf", "head"), ("fingerKnuckleB02Rt", "hand_right"),
+                         ("fistLf", "hand_left")):
+        moving = moving_vertices(v, posed[pose])
+        assert moving.sum() > 10 and regions[region][moving].mean() > 0.9, pose
+
+
+@pytest.mark.parametrize("rest", ["bind", "tpose"])
+def test_small_motions_are_framed_close_up_and_broad_ones_show_the_body(body, rest):
+    v, regions, posed = body[rest]
+    never = lambda: pytest.fail("the regions are located only when a region is framed")  # noqa: E731
+    height = np.ptp(v[:, 2])
+    for pose in ("browDwLf", "cornerUpLf", "fingerKnuckleB02Rt", "fistLf"):
+        f = frame("auto", v, never, [posed[pose], None], pose)
+        size = np.subtract(f.bounds[1::2], f.bounds[0::2])
+        assert f.region == "moving" and np.linalg.norm(size) < 0.35 * height, pose
+        assert _inside(f.bounds, v[moving_vertices(v, posed[pose])]) == 1.0  # all of what moves is in view
+    for pose in ("elbowBentLf", "kneeBentRt"):
+        assert frame("auto", v, never, [posed[pose], None], pose).region == "body"
+    # the truth first: a prediction that moves elsewhere does not decide the framing
+    assert frame("auto", v, never, [posed["browDwLf"], posed["elbowBentLf"]], "browDwLf").region == "moving"
+    assert frame("auto", v, never, [None, posed["fistLf"]], "fistLf").region == "moving"
+
+
+def test_without_motion_the_poses_own_region_is_framed(body):
+    v, regions, _ = body["bind"]
+    f = frame("auto", v, lambda: regions, [None, v.copy()], "browDwLf")  # a gated face pose on an opened mesh
+    assert f.region == "head" and _inside(f.bounds, v[regions["head"]]) == 1.0
+    assert _inside(f.bounds, v[regions["hand_left"]]) == 0.0
+    assert frame("auto", v, lambda: regions, [None, v.copy()], "fingerKnuckleA01Rt").region == "hand_right"
+    assert frame("auto", v, lambda: regions, [None, v.copy()], "elbowBentLf").region == "body"
+    assert frame("auto", v, lambda: None, [None, v.copy()], "browDwLf").region == "body"  # no regions located
+    assert region_of_pose("jawOpen+cornerUpLf+cornerUpRt") == "head"
+    assert region_of_pose("elbowBentLf+fistLf") == "body" and region_of_pose("fistLf+fistRt") == "body"
+    assert region_of_pose("not a pose") == "body" and region_of_pose(None) == "body"
+
+
+def test_a_pinned_focus_frames_its_region_whatever_moves(body):
+    v, regions, posed = body["tpose"]
+    for focus in ("head", "hand_left", "hand_right"):
+        f = frame(focus, v, lambda: regions, [posed["kneeBentRt"], None], "kneeBentRt")
+        assert f.region == focus and _inside(f.bounds, v[regions[focus]]) == 1.0
+    assert frame("body", v, lambda: regions, [posed["browDwLf"]], "browDwLf").region == "body"
+    assert set(FOCUS_CHOICES) == {"auto", "body", "head", "hand_left", "hand_right"}
+    with pytest.raises(ValueError, match="focus"):
+        frame("feet", v, lambda: regions, [None], None)
