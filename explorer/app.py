@@ -38,6 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--session", help="load a saved session (JSON)")
     ap.add_argument("--example-neutral", help="condition on an example pair: a character's neutral mesh A")
     ap.add_argument("--example-posed", help="... and the same mesh deformed, A1 (A's vertices and triangles)")
+    ap.add_argument("--focus", default="auto", help="what the views frame: auto (what the pose moves, close up when "
+                    "small: default), body, head, hand_left or hand_right")
     ap.add_argument("--view", default="front", choices=("front", "side"), help="camera: front (default) or side")
     ap.add_argument("--tab", type=int, default=0, choices=(0, 1, 2), help="heatmap tab to show (2 = noise floor)")
     ap.add_argument("--screenshot", help="render once, save this PNG and exit (non-zero, with the error, if anything fails)")
@@ -69,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         sel = Selection.from_dict(dict(kind=args.kind, pose=args.pose, pose_b=args.pose_b, blend=args.blend,
                                        magnitude=args.magnitude, strategy=args.strategy,
                                        colour="displacement" if args.displacement else "error", compare=args.compare,
+                                       focus=args.focus,
                                        **({"target": args.target} if args.target else {})))
         try:
             w, h = (int(x) for x in args.size.lower().split("x"))
