@@ -38,8 +38,8 @@ from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
 from latent_model.types import FINAL, PAIR_KINDS
 
 from explorer.events import Event
-from explorer.framing import frame
 from explorer.example_pair import ExamplePairs, Progress, read_example_steps
+from explorer.framing import frame
 from explorer.results import (ExampleOpened, ExamplePair, Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened,
                               NoiseFloor, PairRef, Predicted, Prediction, ViewState, example_subject)
 from explorer.selection import Selection, SessionError

@@ -90,7 +90,6 @@ class ViewPanel(QWidget):
         self.wireframe = False
         self.state: ViewState | None = None
         self._camera_set = False
-        self._direction = "front"  # the last of the front/side buttons
         self.framing: Framing | None = None  # what the camera fits (None: the source's bounds)
         self._framed: tuple | None = None  # the selection it was framed for (target, kind, pose, example, focus)
         self._n_views = 3  # visible views (titles wrap to their width)
@@ -267,7 +266,6 @@ class ViewPanel(QWidget):
         else:
             bounds = (-1.0, 1.0, -1.0, 1.0, -1.0, 1.0)
         if which in ("front", "side"):
-            self._direction = which
             c = np.array([(bounds[0] + bounds[1]) / 2, (bounds[2] + bounds[3]) / 2, (bounds[4] + bounds[5]) / 2])
             d = np.array([0.0, -1.0, 0.0]) if which == "front" else np.array([1.0, 0.0, 0.0])
             cam.focal_point = tuple(c)

@@ -128,7 +128,7 @@ def _batch_tensors(rows: list[dict]) -> dict[str, torch.Tensor]:
 
 
 def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, delta: np.ndarray,
-                idx: np.ndarray | None = None, averaged: int = 1) -> dict:
+                idx: np.ndarray | None = None, averaged: float = 1) -> dict:
     """Decoder inputs of character i's neutral (all vertices, or `idx`) with condition `delta`, which averages
     the deltas of `averaged` characters (a pose's mean: `table.mean_count[pose]`)."""
     v, n, sf = cache.get(i)
