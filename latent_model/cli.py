@@ -265,10 +265,29 @@ def cmd_train(args) -> None:
     init_distributed()
     done = False
     try:
-        _train(args)
+        _train_detail(args) if args.phase == "detail" else _train(args)
         done = True
     finally:
         close_distributed(wait=done)
+
+
+def _train_detail(args) -> None:
+    """`lrr train detail`: the local detail stage (no corpus needed: the preset's persons are regenerated)."""
+    from latent_model.config import data_root, override, preset
+    from latent_model.train.local_detail import DetailSection, detail_training, run_local_detail
+
+    p = preset(args.preset)
+    try:
+        cfg = override(DetailSection(detail_training(args.preset)), args.set or [], sections=("detail",)).detail
+    except ValueError as e:
+        raise UserError(str(e)) from e
+    run_dir = Path(args.run_dir) if args.run_dir else data_root() / "runs" / args.preset
+    run_dir.mkdir(parents=True, exist_ok=True)
+    out = run_dir / "detail.safetensors"
+    print(f"training the local detail stage (head, hands) of preset {args.preset}; -> {out}")
+    t = time.perf_counter()
+    run_local_detail(p, cfg, out, workers=args.workers, log=print if not args.quiet else (lambda _m: None))
+    print(f"done in {time.perf_counter() - t:.1f} s; {out} is read beside {run_dir / 'model.safetensors'}")
 
 
 def _train(args) -> None:
@@ -381,8 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_sheet)
 
     t = sub.add_parser("train", help="train Phase A (SDF-VAE), Phase B (vertex decoder) or both; resumes")
-    t.add_argument("phase", choices=("phase-a", "phase-b", "all", "motion"),
-                   help="motion: decoder v2 alone, on the run's finished Phase B (phase_b.safetensors)")
+    t.add_argument("phase", choices=("phase-a", "phase-b", "all", "motion", "detail"),
+                   help="motion: decoder v2 alone, on the run's finished Phase B (phase_b.safetensors); detail: the "
+                        "local detail stage (faces, fingers) -> RUN_DIR/detail.safetensors, no corpus needed")
     t.add_argument("--preset", required=True, choices=PRESETS)
     t.add_argument("--corpus", help="corpus directory (default: the preset's)")
     t.add_argument("--run-dir", help="run directory for checkpoints, logs, loss curves (default: $LRR_DATA/runs/PRESET)")
@@ -390,6 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--set", action="append", metavar="SECTION.FIELD=VALUE",
                    help="override one preset field for this run (repeatable; stored in the checkpoint), "
                         "e.g. --set train.a_steps=3000 --set loss.mirror=0")
+    t.add_argument("--workers", type=int, default=2, help="detail: processes posing and sampling the characters")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.set_defaults(func=cmd_train)
 

@@ -277,7 +277,7 @@ class Preset:
                       _from_dict(TrainConfig, d["train"]), loss)
 
 
-def override(p: Preset, assignments: list[str]) -> Preset:
+def override(p, assignments: list[str], sections: tuple[str, ...] = ("model", "train", "loss")):
     """`p` with "SECTION.FIELD=VALUE" assignments applied (`train.a_mirrors=true`, `loss.mirror=1`,
     `model.motion.steps=3000`); the corpus is fixed by the built corpus, so it has no overrides.
     VALUE is JSON (true, 3, 0.5, [1, 2]) or a bare string; it must have the field's type."""
@@ -286,9 +286,9 @@ def override(p: Preset, assignments: list[str]) -> Preset:
     for a in assignments:
         key, sep, raw = a.partition("=")
         path = key.strip().split(".")
-        if not sep or len(path) < 2 or path[0] not in ("model", "train", "loss"):
-            raise ValueError(f"--set {a!r}: expected SECTION.FIELD=VALUE with SECTION model, train or loss "
-                             f"(e.g. train.a_mirrors=true)")
+        if not sep or len(path) < 2 or path[0] not in sections:
+            raise ValueError(f"--set {a!r}: expected SECTION.FIELD=VALUE with SECTION {', '.join(sections)} "
+                             f"(e.g. train.a_mirrors=true, detail.codec_steps=3000)")
         try:
             value = json.loads(raw)
         except json.JSONDecodeError:

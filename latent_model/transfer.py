@@ -15,10 +15,10 @@ network, which also reads the mesh's latent, normals and neighbourhoods. A `Prep
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import torch
@@ -30,6 +30,8 @@ from latent_model.nn.motion_decoder import (RigidMotion, apply_motion, heat_aver
                                             part_rigidifier, surface_smoother)
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
+if TYPE_CHECKING:
+    from latent_model.detail import LocalDetailModel
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
@@ -39,6 +41,12 @@ __all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "Transfe
 # predicted displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
 GATE_LO = 1.5
 GATE_HI = 3.0
+
+
+def smooth_gate(signal: float) -> float:
+    """0 below GATE_LO, 1 above GATE_HI, smoothstep in between (a delta's signal in units of its noise)."""
+    x = min(max((signal - GATE_LO) / (GATE_HI - GATE_LO), 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 class PreparedMesh:
@@ -101,6 +109,7 @@ class TransferOutput:
     label: str  # where pose A's delta came from: "mean", an identity id, "oracle" or "example"
     predictor: Predictor  # what produced `raw`
     novelty: "Novelty | None" = None  # how far the mesh's latent is from training (when its latent was read)
+    detail: dict[str, float] = field(default_factory=dict)  # the local detail stage's gate per region it moved
 
 
 @dataclass(frozen=True)
@@ -125,19 +134,26 @@ class Novelty:
 
 
 class Transfer:
-    def __init__(self, model, bank: LatentBank, sdf_k: int, device: torch.device | None = None) -> None:
+    def __init__(self, model, bank: LatentBank, sdf_k: int, device: torch.device | None = None,
+                 detail: "LocalDetailModel | None" = None) -> None:
         self.model = model.eval()
         self.bank = bank
         self.sdf_k = sdf_k
         self.device = device or torch.device("cpu")
         self.model.to(self.device)
+        self.detail = detail  # the local detail stage (faces, fingers), when the model has one
 
     @classmethod
-    def from_files(cls, checkpoint: str | Path, bank: str | Path, device: torch.device | None = None) -> "Transfer":
+    def from_files(cls, checkpoint: str | Path, bank: str | Path, device: torch.device | None = None,
+                   detail: str | Path | None = "beside") -> "Transfer":
+        """`detail`: a local detail file, "beside" (the checkpoint's `detail.safetensors` if there is one) or None."""
         from latent_model.checkpoint import load_checkpoint
+        from latent_model.detail import LocalDetailModel, detail_beside
 
         model, preset, _ = load_checkpoint(checkpoint)
-        return cls(model, LatentBank.load(bank), preset.corpus.sdf.k, device)
+        path = detail_beside(checkpoint) if detail == "beside" else detail
+        return cls(model, LatentBank.load(bank), preset.corpus.sdf.k, device,
+                   None if path is None else LocalDetailModel.load(path))
 
     # ------------------------------------------------------------------ per mesh
     @torch.no_grad()
@@ -193,6 +209,18 @@ class Transfer:
                              f"and {len(neutral.faces)} triangles, the posed {len(posed.vertices)} and {len(posed.faces)}")
         return posed.mu - neutral.mu
 
+    def example_detail(self, neutral: PreparedMesh, posed: PreparedMesh) -> dict[str, np.ndarray] | None:
+        """{region: delta} of an example pair for the local detail stage (None without one): the posed mesh's
+        head and hands sampled co-moving with the neutral's (`LocalDetailModel.example_deltas`)."""
+        if self.detail is None:
+            return None
+        return self.detail.example_deltas(self.regions(neutral), posed.vertices.astype(np.float64))
+
+    def regions(self, mesh: PreparedMesh):
+        """The mesh's detail regions and their codes (`detail.MeshRegions`), once per mesh."""
+        return mesh.cache("detail_regions", "cpu", lambda: self.detail.regions(
+            mesh.vertices, mesh.faces, mesh.sdf_faces, mesh.surface))
+
     def novelty(self, mesh: PreparedMesh) -> Novelty:
         """How far the mesh's latent lies from every training state (encodes the mesh if not yet done)."""
         # the distance once per mesh (27k training states: not at every slider move); the threshold as it is now
@@ -210,8 +238,7 @@ class Transfer:
         if floor <= 0:  # a bank without a measured noise floor: no gate
             return 1.0, float("inf")
         signal = float(np.linalg.norm(np.asarray(delta) / self.bank.scale)) / floor * float(np.sqrt(averaged))
-        x = min(max((signal - GATE_LO) / (GATE_HI - GATE_LO), 0.0), 1.0)
-        return x * x * (3.0 - 2.0 * x), signal
+        return smooth_gate(signal), signal
 
     def averaged(self, pose: str | None, strategy: Strategy, kind: PairKind) -> int:
         """How many training deltas a strategy's delta averages (the mean strategy: all of the pose's; else 1)."""
@@ -229,21 +256,24 @@ class Transfer:
     def predict(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
                 kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
                 oracle_target_mu: np.ndarray | None = None, oracle_target_mu_b: np.ndarray | None = None,
-                delta: np.ndarray | None = None) -> np.ndarray:
+                delta: np.ndarray | None = None, detail_delta: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """(V, 3) float32 predicted vertices (`predict_detail(...).vertices`)."""
         return self.predict_detail(mesh, pose, strategy, magnitude, kind, pose_b, blend,
-                                   oracle_target_mu, oracle_target_mu_b, delta).vertices
+                                   oracle_target_mu, oracle_target_mu_b, delta, detail_delta).vertices
 
     @torch.no_grad()
     def predict_detail(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta",
                        magnitude: float = 1.0, kind: PairKind = "neutral_to_pose", pose_b: str | None = None,
                        blend: float = 0.0, oracle_target_mu: np.ndarray | None = None,
-                       oracle_target_mu_b: np.ndarray | None = None, delta: np.ndarray | None = None) -> TransferOutput:
+                       oracle_target_mu_b: np.ndarray | None = None, delta: np.ndarray | None = None,
+                       detail_delta: dict[str, np.ndarray] | None = None) -> TransferOutput:
         """The prediction with its parts. `blend` in [0, 1] mixes pose A's delta toward pose B's;
         `magnitude` in [0, 2] scales r_Δ (0 = no motion requested: the source exactly, 1 = as
         conditioned, 2 = doubled). The displacement is scaled by the noise gate of the delta.
         `delta`: pose A's raw latent delta given directly (an example pair's, `example_delta`) instead of
-        the strategy's; `pose` may then be None."""
+        the strategy's; `pose` may then be None; `detail_delta` its region deltas (`example_detail`).
+        With a local detail stage, `neutral_to_pose` adds what a face or finger pose does inside the head and
+        hands (`_add_detail`)."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
         if delta is not None:
             d, label = np.asarray(delta, np.float32), "example"
@@ -268,9 +298,37 @@ class Transfer:
                 gate = 0.0
             raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
             gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
+        detail_gates: dict[str, float] = {}
+        if self.detail is not None and kind == "neutral_to_pose":
+            person = None if label in ("mean", "oracle", "example") else label.split("@")[0]
+            a_part = (detail_delta or {}, 1) if delta is not None else self.detail.pose_deltas(pose, person)
+            parts = [(a_part, 1.0 - blend if d_b is not None else 1.0)]
+            if d_b is not None:
+                parts.append((self.detail.pose_deltas(pose_b, person), blend))
+            raw, gated, detail_gates = self._add_detail(mesh, raw, gated, parts, magnitude)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
-        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty)
+        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates)
+
+    def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float
+                    ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+        """(raw, gated, {region: gate}) with the local detail of `parts` [(({region: delta}, averaged), weight)]
+        added, each region's delta weighed by the slider weight, the magnitude and (gated) its own noise gate."""
+        if magnitude == 0 or not any(d for (d, _), _ in parts):
+            return raw, gated, {}
+        regions = self.regions(mesh)
+        gates: dict[str, float] = {}
+        ungated, weighed = [], []
+        for (deltas, n), w in parts:
+            g = {r: self.detail.gate(r, d, n)[0] for r, d in deltas.items()}
+            for r, x in g.items():
+                gates[r] = max(gates.get(r, 0.0), x)
+            for r, d in deltas.items():
+                ungated.append(({r: d}, w * magnitude))
+                weighed.append(({r: d}, w * magnitude * g[r]))
+        raw = (raw + self.detail.displacement(regions, ungated, raw)).astype(np.float32)
+        gated = (gated + self.detail.displacement(regions, weighed, gated)).astype(np.float32)
+        return raw, gated, gates
 
     def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""

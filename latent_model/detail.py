@@ -1,0 +1,196 @@
+"""The local detail stage at inference: a face or finger pose's motion inside the head or a hand.
+
+Decoder v2 moves the body from the global code, which cannot see a brow or a finger (their deltas sit at its
+noise floor). Here each region of the source (`regions.region_frames`) is encoded at its own scale, the
+pose's region delta comes from the detail bank (the mean over training characters, or one character's) or an
+example pair (co-moving samples of A and A1), and the local decoder turns (delta, source code) into the
+region's displacement, placed in the frame that follows the region as the body prediction moved it.
+A delta is gated by its own noise floor as the global one is (`Transfer.noise_gate`).
+
+Files: `detail.safetensors` beside a checkpoint (`lrr train detail`): the networks (`net.*`), the bank's
+deltas (`delta.POSE.REGION`) and JSON metadata (config, persons, noise floors, sampling).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from latent_model.atomic import atomic_write
+from latent_model.detail_poses import detail_regions_of
+from latent_model.nn.local_detail import LocalDetail, LocalDetailConfig
+from latent_model.regions import REGION_KIND, REGIONS, RegionFrame, RegionSampling, region_frames, sample_region
+
+FORMAT = "lrr-detail-1"
+EDGE = 0.15  # of a region's reach: the local motion fades to 0 over its outer edge (no seam at the neck or wrist)
+
+
+@dataclass
+class DetailBank:
+    """Standardised co-moving region deltas {(pose, region): (n, Z)} of the training characters `persons`,
+    the noise floor of one such delta per region kind, and the sampling they were made with."""
+
+    deltas: dict[tuple[str, str], np.ndarray]
+    persons: list[str]
+    noise: dict[str, float]
+    sampling: RegionSampling
+
+    def has(self, pose: str) -> bool:
+        return any(k[0] == pose for k in self.deltas)
+
+    def mean(self, pose: str, region: str) -> np.ndarray:
+        return self.deltas[(pose, region)].mean(axis=0)
+
+    def of_person(self, pose: str, region: str, person: str) -> np.ndarray | None:
+        """One training person's delta, or None when the person is not in the bank."""
+        if person not in self.persons:
+            return None
+        return self.deltas[(pose, region)][self.persons.index(person)]
+
+
+class LocalDetailModel:
+    """The networks and the bank of the local detail stage (`load`)."""
+
+    def __init__(self, net: LocalDetail, bank: DetailBank) -> None:
+        self.net = net.eval()
+        self.bank = bank
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: Path) -> None:
+        from safetensors.torch import save_file
+
+        tensors = {f"net.{k}": v.detach().cpu().contiguous() for k, v in self.net.state_dict().items()}
+        tensors.update({f"delta.{p}.{r}": torch.from_numpy(np.ascontiguousarray(d))
+                        for (p, r), d in self.bank.deltas.items()})
+        meta = {"format": FORMAT, "config": json.dumps(self.net.cfg.to_dict()), "persons": json.dumps(self.bank.persons),
+                "noise": json.dumps(self.bank.noise), "sampling": json.dumps(asdict(self.bank.sampling))}
+        atomic_write(Path(path), lambda tmp: save_file(tensors, str(tmp), metadata=meta))
+
+    @staticmethod
+    def load(path: str | Path) -> "LocalDetailModel":
+        from safetensors import SafetensorError, safe_open
+
+        from latent_model.checkpoint import CheckpointError
+
+        path = Path(path)
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                meta = dict(f.metadata() or {})
+                if meta.get("format") != FORMAT:
+                    raise CheckpointError(f"{path} is not a local detail file ({FORMAT}); re-create it with "
+                                          "`lrr train detail`")
+                tensors = {k: f.get_tensor(k) for k in f.keys()}
+        except (SafetensorError, OSError) as e:
+            raise CheckpointError(f"local detail file {path} is unreadable ({e}); re-create it with "
+                                  "`lrr train detail`") from e
+        net = LocalDetail(LocalDetailConfig.from_dict(json.loads(meta["config"])))
+        net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
+        deltas = {}
+        for k, v in tensors.items():
+            if k.startswith("delta."):
+                pose, region = k[6:].rsplit(".", 1)
+                deltas[(pose, region)] = v.numpy()
+        s = json.loads(meta["sampling"])
+        sampling = RegionSampling(**{k: tuple(v) if isinstance(v, list) else v for k, v in s.items()})
+        return LocalDetailModel(net, DetailBank(deltas, json.loads(meta["persons"]), json.loads(meta["noise"]), sampling))
+
+    # ------------------------------------------------------------------ per mesh
+    def regions(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray, features=None,
+                seed: int = 0) -> "MeshRegions":
+        """A mesh's region frames and standardised codes (its neutral: what a prediction starts from)."""
+        v = np.asarray(vertices, dtype=np.float64)
+        frames = region_frames(v, faces, features)
+        codes = {r: self._code(r, *sample_region(v, sdf_faces, f, self.bank.sampling, seed)) for r, f in frames.items()}
+        return MeshRegions(frames, codes, v, sdf_faces, seed)
+
+    def example_deltas(self, neutral: "MeshRegions", posed_vertices: np.ndarray) -> dict[str, np.ndarray]:
+        """{region: standardised delta} of an example pair: the posed mesh (A's topology) sampled co-moving with
+        the neutral (its frames, following each region, the neutral's seed)."""
+        out = {}
+        for r, f in neutral.frames.items():
+            pts, vals = sample_region(posed_vertices, neutral.sdf_faces, f, self.bank.sampling, neutral.seed,
+                                      rest=neutral.vertices)
+            out[r] = self._code(r, pts, vals) - neutral.codes[r]
+        return out
+
+    def pose_deltas(self, pose: str, person: str | None = None) -> tuple[dict[str, np.ndarray], int]:
+        """({region: delta}, how many characters it averages) of a vocabulary pose: the training mean, or
+        `person`'s (a training person; the mean when the bank does not hold it). Empty for a body pose."""
+        out, n = {}, 1
+        for r in detail_regions_of(pose):
+            if (pose, r) not in self.bank.deltas:
+                continue
+            own = None if person is None else self.bank.of_person(pose, r, person)
+            if own is None:
+                out[r], n = self.bank.mean(pose, r), len(self.bank.deltas[(pose, r)])
+            else:
+                out[r] = own
+        return out, n
+
+    def gate(self, region: str, delta: np.ndarray, averaged: float) -> tuple[float, float]:
+        """(gate, signal) of a region delta against its kind's noise floor (over sqrt(averaged) for a mean)."""
+        from latent_model.transfer import smooth_gate
+
+        floor = self.bank.noise.get(REGION_KIND[region], 0.0)
+        if floor <= 0:
+            return 1.0, float("inf")
+        signal = float(np.linalg.norm(delta)) / floor * float(np.sqrt(averaged))
+        return smooth_gate(signal), signal
+
+    @torch.no_grad()
+    def displacement(self, mesh: "MeshRegions", deltas: list[tuple[dict[str, np.ndarray], float]],
+                     moved: np.ndarray) -> np.ndarray:
+        """(V, 3) world displacement to add to `moved` (the body prediction of the mesh, (V, 3)): for each region,
+        the sum over `deltas` [({region: delta}, weight)] of the local decoder's displacement at the delta's
+        length times its weight, in the region's frame as `moved` carries it, fading over the region's edge."""
+        out = np.zeros_like(moved, dtype=np.float64)
+        for r, f in mesh.frames.items():
+            parts = [(d[r], w) for d, w in deltas if r in d and w != 0.0]
+            if not parts:
+                continue
+            kind = REGION_KIND[r]
+            x = torch.from_numpy(f.to_local(mesh.vertices[f.vertices]).astype(np.float32))[None]
+            mu = torch.from_numpy(np.asarray(mesh.codes[r], np.float32))[None]
+            local = np.zeros((len(f.vertices), 3))
+            for d, w in parts:
+                length = float(np.linalg.norm(d))
+                if length <= 0:
+                    continue
+                direction = torch.from_numpy(np.asarray(d / length, np.float32))[None]
+                local += w * self.net.decoders[kind](x, direction, mu, torch.tensor([length]))[0].numpy()
+            carried = f.follow(mesh.vertices, moved)
+            if carried.mirrored:
+                local[:, 2] = -local[:, 2]
+            world = (local * carried.radius) @ carried.rotation.T
+            out[f.vertices] += world * mesh.fade[r][:, None]
+        return out
+
+    def _code(self, region: str, points: np.ndarray, values: np.ndarray) -> np.ndarray:
+        kind = REGION_KIND[region]
+        return self.net.encode(kind, torch.from_numpy(points)[None], torch.from_numpy(values)[None])[0].numpy()
+
+
+@dataclass
+class MeshRegions:
+    """A source mesh's region frames {region: RegionFrame}, standardised codes {region: (Z,)}, its vertices
+    (V, 3), SDF faces and the sampling seed (an example pair's posed mesh is sampled with it, co-moving)."""
+
+    frames: dict[str, RegionFrame]
+    codes: dict[str, np.ndarray]
+    vertices: np.ndarray
+    sdf_faces: np.ndarray
+    seed: int
+
+    @property
+    def fade(self) -> dict[str, np.ndarray]:
+        """{region: (N,) weight of the local motion}: 1 inside, down to 0 over the region's outer edge."""
+        return {r: np.clip(f.depth / EDGE, 0.0, 1.0) for r, f in self.frames.items()}
+
+
+def detail_beside(checkpoint: str | Path) -> Path | None:
+    """The local detail file next to a checkpoint, if there is one."""
+    p = Path(checkpoint).parent / "detail.safetensors"
+    return p if p.exists() else None

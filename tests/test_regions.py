@@ -1,0 +1,76 @@
+"""Regions of local detail sampled at their own scale (latent_model/regions.py): the frame follows the region's
+rigid motion, a pair sampled with one seed is co-moving (only what deforms changes), the left hand reads as a
+right hand, and a face pose changes the head's samples but not the hands'."""
+import numpy as np
+import pytest
+
+from latent_model.corpus.identities import IdentitySpec
+from latent_model.regions import REGIONS, RegionSampling, region_frames, sample_region
+from latent_model.types import FINAL
+
+PERSON = IdentitySpec("regions", "train", {}, {})
+CFG = RegionSampling(k=512)
+
+
+@pytest.fixture(scope="module")
+def character(generator):
+    from latent_model.corpus.poses import POSES
+    from latent_model.corpus.sdf import body_component_faces
+
+    v = generator.neutral(PERSON).astype(np.float64)
+    faces = body_component_faces(v, generator.faces)
+    posed = {p: getattr(generator.pose(PERSON, POSES[p]), FINAL).astype(np.float64) for p in ("browDwLf", "elbowBentLf")}
+    return v, faces, region_frames(v, generator.faces), posed
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    a = axis / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def test_regions_have_their_own_scale(character):
+    _, _, frames, _ = character
+    assert set(frames) == set(REGIONS)
+    assert 0.08 < frames["head"].radius < 0.2 and 0.04 < frames["hand_left"].radius < 0.1
+    for f in frames.values():
+        assert np.allclose(f.rotation.T @ f.rotation, np.eye(3), atol=1e-9) and np.linalg.det(f.rotation) > 0
+
+
+def test_a_rigidly_moved_body_samples_as_its_rest(character):
+    v, faces, frames, _ = character
+    moved = v @ _rotation(np.array([0.3, 0.2, 1.0]), 0.7).T + np.array([0.4, -0.2, 0.1])
+    for name, f in frames.items():
+        p0, s0 = sample_region(v, faces, f, CFG, seed=3)
+        p1, s1 = sample_region(moved, faces, f, CFG, seed=3, rest=v)
+        assert np.allclose(p0, p1, atol=1e-4) and np.allclose(s0, s1, atol=1e-4), name
+        # without following the motion, the samples would be elsewhere
+        p2, _ = sample_region(moved, faces, f, CFG, seed=3)
+        assert np.abs(p2 - p0).max() > 0.5
+
+
+def test_the_left_hand_reads_as_the_mirrored_right_hand(character):
+    v, faces, frames, _ = character
+    # anny is near-symmetric: the same seed's uniform points in the two hands' frames see similar distances
+    _, left = sample_region(v, faces, frames["hand_left"], CFG, seed=5)
+    _, right = sample_region(v, faces, frames["hand_right"], CFG, seed=5)
+    n = CFG.counts()[2]
+    assert np.abs(left[-n:] - right[-n:]).mean() < 0.05
+    # unmirrored, the left hand's box would be the right hand's turned inside out
+    flipped = frames["hand_left"].__class__(**{**frames["hand_left"].__dict__, "mirrored": False})
+    _, plain = sample_region(v, faces, flipped, CFG, seed=5)
+    assert np.abs(plain[-n:] - right[-n:]).mean() > 2 * np.abs(left[-n:] - right[-n:]).mean()
+
+
+def test_a_face_pose_moves_head_samples_and_a_body_pose_not_the_hand_code(character):
+    v, faces, frames, posed = character
+    head0, _ = sample_region(v, faces, frames["head"], CFG, seed=1)
+    head1, _ = sample_region(posed["browDwLf"], faces, frames["head"], CFG, seed=1, rest=v)
+    moved = np.linalg.norm(head1 - head0, axis=1) * frames["head"].radius
+    assert 0.002 < moved.max() < 0.03 and (moved > 0.2 * moved.max()).mean() < 0.2  # the brow, not the head
+    # the forearm carries the hand: in the hand's following frame little changes
+    hand0, _ = sample_region(v, faces, frames["hand_left"], CFG, seed=1)
+    hand1, _ = sample_region(posed["elbowBentLf"], faces, frames["hand_left"], CFG, seed=1, rest=v)
+    world = np.linalg.norm(posed["elbowBentLf"][frames["hand_left"].vertices] - v[frames["hand_left"].vertices], axis=1)
+    assert world.mean() > 0.1
+    assert np.median(np.linalg.norm(hand1 - hand0, axis=1)) * frames["hand_left"].radius < 0.005
