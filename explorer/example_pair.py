@@ -90,5 +90,8 @@ def read_example_steps(transfer, neutral: str | Path, posed: str | Path, up: str
         p.mu  # noqa: B018 - the encoding, in this step
         prepared.append(p)
     delta = transfer.example_delta(*prepared)
+    if transfer.detail is not None:
+        yield "encoding the example's head and hands (local detail)", 0.9
+    detail = transfer.example_detail(*prepared)
     novelty = transfer.novelty(prepared[0]) if transfer.bank.ood_threshold > 0 else None
-    return ExamplePair(f"{a.name} → {a1.name}", a, a1, delta, (neutral, posed), stamp, novelty)
+    return ExamplePair(f"{a.name} → {a1.name}", a, a1, delta, (neutral, posed), stamp, novelty, detail)

@@ -53,6 +53,7 @@ class ExamplePair:
     paths: tuple[str, str]  # the files of A and A1 (saved in session files)
     stamp: tuple  # the files' (size, mtime) when read: the same files unchanged are not encoded again
     novelty: Novelty | None = None  # how far A is from the training states (None: the bank has no threshold)
+    detail: dict[str, np.ndarray] | None = None  # {region: delta} for the local detail stage (None: no stage)
 
     @property
     def label(self) -> str:
@@ -77,6 +78,7 @@ class Prediction:
     gate: float = 1.0  # the Transfer API's noise gate (1 = the predictor's output untouched)
     signal: float = float("inf")  # conditioning delta / latent noise floor
     novelty: Novelty | None = None  # how far the target's latent is from training (None: not judged)
+    detail: dict[str, float] = field(default_factory=dict)  # the local detail stage's gate per region it moved
 
     @property
     def is_example(self) -> bool:
@@ -92,7 +94,10 @@ class Prediction:
         what, mm = ("error", self.error_mm) if self.error_mm is not None else ("displacement", self.displacement_mm)
         text = f"{name}{cond}\n{what} mean {mm.mean():.1f} mm\n{what} max {mm.max():.1f} mm"
         if self.gate < 1.0:
-            text += f"\nnoise gate {self.gate:.2f}: delta {self.signal:.1f}x its noise"
+            text += f"\n{'body ' if self.detail else ''}noise gate {self.gate:.2f}: delta {self.signal:.1f}x its noise"
+        if self.detail:
+            text += "\nlocal detail: " + ", ".join(f"{r.replace('_', ' ')}" + (f" gate {g:.2f}" if g < 1.0 else "")
+                                                   for r, g in self.detail.items())
         if self.novelty is not None and self.novelty.out_of_distribution:
             text += f"\nout of distribution: latent {self.novelty.distance:.1f} > {self.novelty.threshold:.1f}"
         return text

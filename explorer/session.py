@@ -307,7 +307,7 @@ class Session:
             out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
         else:  # the example's delta is pose A's; the strategy still gives pose B's when blending
             out = self.transfer.predict_detail(prepared, None, strategy, sel.magnitude, sel.kind, pose_b, sel.blend,
-                                               delta=example.delta)
+                                               delta=example.delta, detail_delta=example.detail)
         v = out.vertices
         dt = time.perf_counter() - t
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
@@ -315,7 +315,7 @@ class Session:
         novelty = out.novelty if out.novelty is not None else self._novelty(prepared)
         strategy, label = (strategy, out.label) if example is None else ("example", example.name)
         return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal,
-                          novelty), dt
+                          novelty, out.detail), dt
 
     def _novelty(self, prepared):
         """The target's Novelty when the bank can judge it (a predictor that did not read the latent

@@ -104,8 +104,8 @@ def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: Us
     a, a1 = (transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces, seed=seed) for m in (neutral, posed))
     delta = transfer.example_delta(a, a1)
     target = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
-    result = _with_novelty(transfer, transfer.predict_detail(target, None, magnitude=magnitude, kind=kind, delta=delta),
-                           target)
+    result = _with_novelty(transfer, transfer.predict_detail(target, None, magnitude=magnitude, kind=kind, delta=delta,
+                                                             detail_delta=transfer.example_detail(a, a1)), target)
     novelty = {mesh.name: result.novelty}
     if transfer.bank.ood_threshold > 0:
         novelty[neutral.name] = transfer.novelty(a)
@@ -147,7 +147,10 @@ def _print_result(result: "TransferOutput", novelty: dict) -> None:
     if result.gate < 1.0:
         print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x its sampling noise "
               f"(the latent noise floor, over sqrt(N) for a mean of N deltas; below 1.5x it carries no usable signal "
-              f"and the prediction keeps the source)")
+              f"and the {'body motion' if result.detail else 'prediction'} keeps the source)")
+    if result.detail:
+        print("local detail (faces, fingers): " + ", ".join(
+            f"{r.replace('_', ' ')} gate {g:.2f}" for r, g in result.detail.items()))
 
 
 def run_cli(args) -> None:

@@ -21,6 +21,7 @@ import numpy as np
 REGIONS = ("head", "hand_left", "hand_right")
 REGION_KIND = {"head": "head", "hand_left": "hand", "hand_right": "hand"}  # which encoder reads a region
 MIRRORED = {"hand_left"}  # read as a right hand: one hand encoder for both
+FOLLOW_TOLERANCE = 0.01  # of a region's radius: a vertex this close to its rigid motion counts as still
 
 
 @dataclass(frozen=True)
@@ -59,13 +60,12 @@ class RegionFrame:
     mirrored: bool
 
     def follow(self, rest: np.ndarray, moved: np.ndarray) -> "RegionFrame":
-        """This frame carried by the best rigid motion of its vertices from `rest` (V, 3) to `moved` (V, 3), the
-        same mesh deformed: the region's own rigid motion (a head turned, a hand carried by the forearm) leaves
-        its local coordinates unchanged, so a region's code sees its deformation only."""
-        a, b = rest[self.vertices].astype(np.float64), moved[self.vertices].astype(np.float64)
-        ca, cb = a.mean(axis=0), b.mean(axis=0)
-        r = _nearest_rotation((b - cb).T @ (a - ca))
-        return replace(self, centre=r @ (self.centre - ca) + cb, rotation=r @ self.rotation)
+        """This frame carried by the rigid motion of the region's still part from `rest` (V, 3) to `moved`
+        (V, 3), the same mesh deformed (`rigid_motion`): a head turned, a hand carried by the forearm, leave
+        its local coordinates unchanged, and a brow or a curled finger does not tilt them, so a region's code
+        and its local displacement hold the deformation only."""
+        r, t = rigid_motion(rest[self.vertices], moved[self.vertices], self.depth, FOLLOW_TOLERANCE * self.radius)
+        return replace(self, centre=r @ self.centre + t, rotation=r @ self.rotation)
 
     def to_local(self, x: np.ndarray) -> np.ndarray:
         """World points (N, 3) -> region-local (N, 3) in radius units (mirrored where the frame is)."""
@@ -87,6 +87,35 @@ def _nearest_rotation(m: np.ndarray) -> np.ndarray:
         u[:, -1] = -u[:, -1]
         r = u @ vt
     return r
+
+
+def _weighted_fit(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    w = w / w.sum()
+    ca, cb = w @ a, w @ b
+    r = _nearest_rotation(((b - cb) * w[:, None]).T @ (a - ca))
+    return r, cb - r @ ca
+
+
+def rigid_motion(a: np.ndarray, b: np.ndarray, depth: np.ndarray, tolerance: float,
+                 iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), t (3,)) taking the largest near-rigid part of points `a` (N, 3) onto `b` (N, 3): b ~ a R^T + t.
+
+    A plain least-squares fit of a whole region tilts with whatever moves inside it (a mouth corner, a fist) and
+    spreads that tilt over the still skin. Iteratively reweighted fits (Gaussian weights at twice the 10 % quantile
+    of the residuals) lock onto a rigid part; two starts (all points, and the region's base: low `depth`, where a
+    curled hand is still) and the one with more points within `tolerance` (metres) wins."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    best, best_count = None, -1
+    for w in (np.ones(len(a)), np.exp(-(np.asarray(depth, np.float64) / 0.25) ** 2) + 1e-6):
+        for _ in range(iterations):
+            r, t = _weighted_fit(a, b, w)
+            res = np.linalg.norm(a @ r.T + t - b, axis=1)
+            s = max(2.0 * float(np.quantile(res, 0.1)), 0.1 * tolerance)
+            w = np.exp(-((res / s) ** 2)) + 1e-9
+        count = int((res < tolerance).sum())
+        if count > best_count:
+            best, best_count = (r, t), count
+    return best
 
 
 def region_frames(vertices: np.ndarray, faces: np.ndarray, features=None) -> dict[str, RegionFrame]:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-VERSION = 2  # of what surface_features computes (caches of it are keyed by it)
+VERSION = 3  # of what surface_features computes (caches of it are keyed by it); 3: the torso patch alone as the centre
 FORWARD = np.array([0.0, -1.0, 0.0])  # anny faces -Y (Z up); imported meshes are brought to this frame
 EXTREMITIES = ("head", "hand_left", "hand_right", "foot_left", "foot_right")
 
@@ -88,7 +88,7 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
     area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     centroid = (area[:, None] * v[f].mean(axis=1)).sum(axis=0) / area.sum()
     d0 = np.linalg.norm(v - centroid, axis=1)
-    near = np.flatnonzero(d0 < d0.min() + 0.08 * height)
+    near = _torso_patch(graph, d0 < d0.min() + 0.08 * height, int(np.argmin(d0)))
     d_c = _distances(graph, near, d0[near] - d0[near].min())
     reached = np.isfinite(d_c)
     # the body surface is the component of the centre; extremities: farthest points of it, in turn
@@ -146,6 +146,17 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
         medial = adj @ medial
     return SurfaceFeatures(coords.astype(np.float32), frames.astype(np.float32), medial.astype(np.float32),
                            extremities)
+
+
+def _torso_patch(graph, band: np.ndarray, seed: int) -> np.ndarray:
+    """Indices of the vertices of `band` (V,) bool connected within it to `seed`: the torso's surface near the
+    centroid. Arms hanging at the sides lie in the band too, but apart from the torso's patch; taken as the centre,
+    their fingertips were as near to it as the navel and the shoulders became the "hands"."""
+    from scipy.sparse.csgraph import connected_components
+
+    idx = np.flatnonzero(band)
+    _, label = connected_components(graph[idx][:, idx], directed=False)
+    return idx[label == label[np.searchsorted(idx, seed)]]
 
 
 def _name_extremities(points: np.ndarray) -> list[int]:

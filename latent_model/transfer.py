@@ -24,16 +24,19 @@ import numpy as np
 import torch
 
 from latent_model.bank import LatentBank
+from latent_model.corpus.poses import get_pose
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
+from latent_model.detail_poses import detail_regions_of
 from latent_model.nn.delta import normalised_delta
 from latent_model.nn.motion_decoder import (RigidMotion, apply_motion, heat_averager, local_motion_fit, mix_motions,
                                             part_rigidifier, surface_smoother)
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
-if TYPE_CHECKING:
-    from latent_model.detail import LocalDetailModel
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
+
+if TYPE_CHECKING:
+    from latent_model.detail import LocalDetailModel
 
 __all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
 
@@ -285,16 +288,18 @@ class Transfer:
         d_b = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)[0] if pose_b is not None and blend > 0 else None
         n_b = self.averaged(pose_b, strategy, kind) if d_b is not None else 1
         predictor = self.predicts_with(kind)
+        body = (not self._local_only(None if delta is not None else pose, kind),
+                not self._local_only(pose_b if d_b is not None else None, kind))
         if predictor == "motion":
             raw, gated, gate, signal = self._motion_prediction(mesh, (d, n), None if d_b is None else (d_b, n_b),
-                                                               blend, magnitude, kind)
+                                                               blend, magnitude, kind, body)
         else:
             averaged = n
             if d_b is not None:
                 d = (1.0 - blend) * d + blend * d_b
                 averaged = 1.0 / ((1.0 - blend) ** 2 / n + blend ** 2 / n_b)  # the mix's noise, independent deltas
             gate, signal = self.noise_gate(d, averaged)
-            if magnitude == 0:
+            if magnitude == 0 or not any(body):
                 gate = 0.0
             raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
             gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
@@ -309,6 +314,15 @@ class Transfer:
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates)
+
+    def _local_only(self, pose: str | None, kind: PairKind) -> bool:
+        """Whether the local detail stage moves this pose entirely (every part a face or finger pose it holds): the
+        body decoder, trained on body poses, then adds nothing (its reading of such a delta, 0.1-0.3 of a gate,
+        moved whole cheeks and hands: puffRt explained 0.34 alone, -0.66 with it)."""
+        if self.detail is None or pose is None or kind != "neutral_to_pose" or not self.detail.bank.has(pose):
+            return False
+        p = get_pose(pose)
+        return all(detail_regions_of(c) for c in (p.components or (p.name,)))
 
     def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float
                     ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
@@ -354,14 +368,16 @@ class Transfer:
         return raw_t[0].cpu().numpy()
 
     def _motion_prediction(self, mesh: PreparedMesh, a: tuple[np.ndarray, int], b: tuple[np.ndarray, int] | None,
-                           blend: float, magnitude: float, kind: PairKind) -> tuple[np.ndarray, np.ndarray, float, float]:
+                           blend: float, magnitude: float, kind: PairKind, body: tuple[bool, bool] = (True, True)
+                           ) -> tuple[np.ndarray, np.ndarray, float, float]:
         """(raw, gated (V, 3), gate, signal) by the motion decoder from pose A's and (blends) pose B's
         (delta, deltas averaged). A blend reads each pose's own delta and mixes the two motions (`mix_motions`):
         the mixed delta's direction swings between the poses' and the decoder reads it non-linearly (steps of
         7-8x the median on the slider), while mixed motions are continuous. Each pose's noise gate weighs its
-        motion; the reported gate and signal are the weighted mean of the poses'."""
+        motion (0 for a pose whose `body` flag is off: the local detail stage's); the reported gate and signal are
+        the weighted mean of the poses'."""
         poses, weights = ([a], [1.0]) if b is None else ([a, b], [1.0 - blend, blend])
-        gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
+        gates, signals = zip(*((g * moves, s) for (x, n), moves in zip(poses, body) for g, s in [self.noise_gate(x, n)]))
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
         conditions = [(*self._condition(x, 1.0, self.model.cfg.motion.reads_as(kind)), n) for x, n in poses]

@@ -88,3 +88,23 @@ def test_a_pinned_focus_frames_its_region_whatever_moves(body):
     assert set(FOCUS_CHOICES) == {"auto", "body", "head", "hand_left", "hand_right"}
     with pytest.raises(ValueError, match="focus"):
         frame("feet", v, lambda: regions, [None], None)
+
+
+def test_hands_hanging_by_the_thighs_are_found_as_hands(generator):
+    """Arms hanging close to the torso (a rest as DCC exports have it, here anny's id004 arms-down character):
+    the arm's skin lies as near the body's centroid as the belly does, and taken as the centre it made the
+    shoulders the farthest points, read as the hands."""
+    from latent_model.config import preset
+    from latent_model.corpus.build import plan
+    from latent_model.surface import detail_regions, surface_features
+
+    spec = next(s for s in plan(preset("standard").corpus)[0] if s.id == "id004@armsDown")
+    v = generator.neutral(spec).astype(np.float64)
+    sf = surface_features(v, generator.faces)
+    regions = detail_regions(sf.coords)
+    height = np.ptp(v[:, 2])
+    hands = v[[sf.extremities["hand_left"], sf.extremities["hand_right"]]]
+    assert hands[0, 0] > 0.1 and hands[1, 0] < -0.1
+    assert (hands[:, 2] < v[:, 2].min() + 0.55 * height).all()  # at the thighs, not the shoulders (0.8 H)
+    for hand in ("hand_left", "hand_right"):
+        assert regions[hand].sum() > 800 and np.linalg.norm(np.ptp(v[regions[hand]], axis=0)) < 0.2 * height

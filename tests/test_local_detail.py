@@ -101,3 +101,37 @@ def test_an_example_pair_gives_co_moving_region_deltas(with_detail, generator, t
     _, mesh = _target(tiny_corpus, with_detail)
     out = with_detail.predict_detail(mesh, None, delta=with_detail.example_delta(pa, pa1), detail_delta=deltas)
     assert set(out.detail) <= {"head", "hand_left", "hand_right"} and "head" in out.detail
+
+
+def test_the_detail_evaluation_measures_the_stage(with_detail, tiny_motion, tmp_path):
+    """`lrr evaluate`'s local detail section on two held-out tiny characters: every face and finger pose gets a
+    latent cosine and R_cond/noise, and transfer rows per rest; a transfer without the stage measures nothing."""
+    from latent_model.analysis.detail_eval import asymmetry_mm, evaluate_detail, markdown, mirror_map
+    from latent_model.analysis.report import detail_characters
+    from latent_model.config import preset
+
+    p = preset("tiny")
+    specs = detail_characters(p, "test", 1)
+    assert [s.rest for s in specs] == ["bind", "tpose"]
+    m, fig = evaluate_detail(with_detail, specs, p.corpus.pose_names(), noise_persons=1, say=lambda _m: None)
+    for pose in ("browDwLf", "puffLf", "cornerUpLf", "fingerKnuckleB02Lf"):
+        assert -1.0 <= m[f"detail.latent.cos.{pose}"] <= 1.0 and m[f"detail.latent.cond_noise.{pose}"] > 0
+        for rest in ("bind", "tpose"):
+            assert np.isfinite(m[f"detail.transfer.{pose}.mean.{rest}.explained"])
+    assert "detail.transfer.group.face.nearest.tpose.leak_mm" in m and "**face group**" in markdown(m)
+    assert "elbowBentLf" not in " ".join(m)  # body poses are the decoder's section
+    plain, _ = tiny_motion
+    assert evaluate_detail(plain, specs, p.corpus.pose_names(), say=lambda _m: None) == ({}, {})
+    # the paper's facial figure: mean and nearest beside the truth, on the head of the first character
+    assert set(fig["example"]) == {"source", "truth", "mean", "nearest"} and fig["title"].startswith(specs[0].id)
+    from latent_model.analysis.figures import detail_closeup
+
+    png = detail_closeup(fig["example"], fig["faces"], fig["region"], fig["title"], tmp_path / "closeup.png")
+    assert png.stat().st_size > 10_000
+    # the asymmetry of a mirror-symmetric motion is 0, of a one-sided one its size
+    v = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, 0, 1.0]])
+    mirror = mirror_map(v)
+    assert list(mirror) == [1, 0, 2]
+    where = np.ones(3, bool)
+    assert asymmetry_mm(np.array([[-0.001, 0, 0], [0.001, 0, 0], [0, 0, 0.001]]), mirror, where) == 0.0
+    assert asymmetry_mm(np.array([[0, 0, 0.003], [0, 0, 0], [0, 0, 0]]), mirror, where) == pytest.approx(2.0)

@@ -74,3 +74,21 @@ def test_a_face_pose_moves_head_samples_and_a_body_pose_not_the_hand_code(charac
     world = np.linalg.norm(posed["elbowBentLf"][frames["hand_left"].vertices] - v[frames["hand_left"].vertices], axis=1)
     assert world.mean() > 0.1
     assert np.median(np.linalg.norm(hand1 - hand0, axis=1)) * frames["hand_left"].radius < 0.005
+
+
+def test_the_frame_follows_the_still_part_not_what_deforms_inside():
+    """A rigid motion plus a large deformation of a part of the points: the fit recovers the rigid motion of the
+    rest (a plain least-squares fit tilts), also when the deformed part is the majority but the base is still."""
+    from latent_model.regions import rigid_motion
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(600, 3)) * 0.05
+    depth = np.clip((a[:, 2] + 0.15) / 0.3, 0, 1)  # the base at low z
+    r, t = _rotation(np.array([0.3, 1.0, 0.2]), 0.4), np.array([0.1, -0.2, 0.05])
+    for moving in (a[:, 0] > 0.03, a[:, 2] > -0.04):  # ~30 % of the points; ~80 %, the base still
+        b = a @ r.T + t
+        b[moving] += np.array([0.0, 0.03, 0.02]) + 0.2 * (a[moving] - a[moving].mean(axis=0))
+        rr, tt = rigid_motion(a, b, depth, tolerance=1e-4)
+        assert np.abs(rr - r).max() < 1e-6 and np.abs(tt - t).max() < 1e-6
+    plain, _ = rigid_motion(a, b, np.ones(len(a)), tolerance=1e-4, iterations=1)
+    assert np.abs(plain - r).max() > 1e-3  # one unweighted fit tilts with what moves

@@ -132,3 +132,28 @@ def transfer_example(ex: dict, faces: np.ndarray, title: str, path: Path, view: 
         ax.set_title(label, fontsize=8)
     fig.suptitle(f"{title} (error colour 0-{vmax:.0f} mm)", fontsize=10)
     return _save(fig, path)
+
+
+def detail_closeup(ex: dict, faces: np.ndarray, region: np.ndarray, title: str, path: Path) -> Path:
+    """The paper's facial figure made by the product: source | mean | nearest | truth of one held-out character,
+    close up on a region (vertex indices `region`: faces with all three inside are drawn), coloured by each
+    mesh's displacement from the source (mm, one scale: where it moves and how much)."""
+    from latent_model.render import draw_mesh
+
+    inside = np.zeros(len(ex["source"]), bool)
+    inside[region] = True
+    keep = faces[inside[faces].all(axis=1)]
+    disp = {k: np.linalg.norm(ex[k] - ex["source"], axis=1) * 1000 for k in ("mean", "nearest", "truth")}
+    vmax = max(1.0, float(np.percentile(disp["truth"][region], 99.5)))
+    fig, axes = plt.subplots(1, 4, figsize=(12, 4.2))
+    for ax, k in zip(axes, ("source", "mean", "nearest", "truth")):
+        values = disp.get(k)
+        draw_mesh(ax, ex[k], keep, "front", values=values, cmap="magma", vmin=0, vmax=vmax)
+        if values is None:
+            ax.set_title(k, fontsize=9)
+        else:
+            err = np.linalg.norm(ex[k] - ex["truth"], axis=1)[region] * 1000
+            ax.set_title(f"{k}: moves ≤ {values[region].max():.1f} mm" + ("" if k == "truth" else f", error {err.mean():.2f} mm"),
+                         fontsize=8)
+    fig.suptitle(f"{title} (displacement colour 0-{vmax:.0f} mm)", fontsize=10)
+    return _save(fig, path)

@@ -33,6 +33,7 @@ NAMED_POSES = ("elbowBentLf", "elbowSuperBentLf", "kneeBentLf", "clavicleDownwar
                "fingerKnuckleD02Lf", "fingerKnuckleD03Lf", "browDwLf", "browDwRt", "puffLf", "cornerUpLf",
                "cornerPuckerLf", "cornerStretchLf", "jawOpen")
 BASELINE_DIMS = (16, 512)
+DETAIL_PER_REST = 4  # held-out characters per rest configuration in the local detail section (evaluation time)
 
 
 def add_arguments(p) -> None:
@@ -45,6 +46,11 @@ def add_arguments(p) -> None:
                    help="recompute the no-learning baselines (default: kept per corpus in $LRR_DATA/cache/baselines)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes sharing the mesh transfer's characters (default: up to 2, one per core)")
+    p.add_argument("--detail", help="local detail file (default: detail.safetensors beside the checkpoint, if any)")
+    p.add_argument("--detail-only", action="store_true",
+                   help="only the local detail section (faces, fingers; no corpus needed) -> OUT/detail.md, detail.json")
+    p.add_argument("--split", choices=("test", "val"), default="test",
+                   help="--detail-only: the held-out characters to measure (val to choose settings, test once)")
     p.add_argument("--quiet", action="store_true")
 
 
@@ -55,11 +61,70 @@ def run_cli(args) -> None:
     ckpt = Path(args.checkpoint) if args.checkpoint else ShippedPaths.at().checkpoint
     bank = Path(args.bank) if args.bank else ckpt.with_name("bank.safetensors")
     t = time.perf_counter()
+    if args.detail_only:
+        out = evaluate_detail_only(ckpt, bank, Path(args.detail) if args.detail else None, args.split, Path(args.out),
+                                   args.transfer_ids, progress=not args.quiet)
+        print(f"local detail report written to {out} in {time.perf_counter() - t:.0f} s")
+        return
     out = evaluate(ckpt, bank, Path(args.corpus) if args.corpus else None, Path(args.out),
                    transfer_ids=args.transfer_ids, progress=not args.quiet,
                    baseline_cache=None if args.fresh_baselines else data_root() / "cache" / "baselines",
-                   workers=args.workers)
+                   workers=args.workers, detail=Path(args.detail) if args.detail else None)
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
+
+
+def detail_characters(preset, split: str, n: int = 0) -> list:
+    """The preset's `split` characters in every rest configuration (bind first), at most `n` per rest (0: all)."""
+    from latent_model.corpus.build import plan
+
+    specs, _, _ = plan(preset.corpus)
+    held = [s for s in specs if s.split == split]
+    rests = sorted({s.rest for s in held}, key=lambda r: (r != "bind", r))
+    return [s for r in rests for s in [x for x in held if x.rest == r][:n or None]]
+
+
+def _detail_transfer(checkpoint: Path, bank: Path, detail: Path | None):
+    """(Transfer with the local detail stage, the checkpoint's preset)."""
+    from latent_model.bank import LatentBank
+    from latent_model.checkpoint import load_checkpoint
+    from latent_model.detail import LocalDetailModel, detail_beside
+    from latent_model.transfer import Transfer
+
+    path = detail or detail_beside(checkpoint)
+    if path is None:
+        raise ValueError(f"no local detail file: give --detail or put detail.safetensors beside {checkpoint} "
+                         "(`lrr train detail`)")
+    model, preset, _ = load_checkpoint(checkpoint)
+    return Transfer(model.eval(), LatentBank.load(bank), preset.corpus.sdf.k, None, LocalDetailModel.load(path)), preset
+
+
+def evaluate_detail_only(checkpoint: Path, bank: Path, detail: Path | None, split: str, out: Path, per_rest: int = 0,
+                         progress: bool = True) -> Path:
+    """`lrr evaluate --detail-only`: the local detail section on the `split` characters -> out/detail.md, detail.json."""
+    from latent_model.analysis.detail_eval import evaluate_detail, markdown
+    from latent_model.atomic import atomic_write_json, atomic_write_text
+
+    transfer, preset = _detail_transfer(checkpoint, bank, detail)
+    specs = detail_characters(preset, split, per_rest)
+    out.mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=print if progress else (lambda _m: None))
+    m["timing.detail_s"] = time.perf_counter() - t
+    m["meta.detail_characters"] = [s.id for s in specs]
+    atomic_write_json(out / "detail.json", m)
+    text = f"# Local detail ({split} characters: {', '.join(s.id for s in specs)})\n\n" + markdown(m) + "\n"
+    if fig:
+        text += f"\n![{fig['title']}]({_detail_figure(fig, out).name})\n"
+    atomic_write_text(out / "detail.md", text)
+    return out
+
+
+def _detail_figure(fig: dict, out: Path) -> Path:
+    from latent_model.analysis import figures
+    from latent_model.analysis.detail_eval import FIGURE_POSE
+
+    return figures.detail_closeup(fig["example"], fig["faces"], fig["region"], fig["title"],
+                                  out / f"detail_{FIGURE_POSE}_closeup.png")
 
 
 def _fmt(v) -> str:
@@ -137,10 +202,12 @@ def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, d
 
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
-             progress: bool = True, baseline_cache: Path | None = None, workers: int | None = None) -> Path:
+             progress: bool = True, baseline_cache: Path | None = None, workers: int | None = None,
+             detail: Path | None = None) -> Path:
     """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
     keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time).
-    `workers`: processes sharing the mesh transfer's characters (None: one per core, at most 2)."""
+    `workers`: processes sharing the mesh transfer's characters (None: one per core, at most 2). `detail`: the
+    local detail file (None: the checkpoint's `detail.safetensors` if there is one), in every prediction."""
     from latent_model.analysis import figures
 
     if workers is not None and workers < 1:
@@ -189,7 +256,10 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
 
     say("mesh transfer on held-out identities")
     t = time.perf_counter()
-    transfer = Transfer(model, bank, preset.corpus.sdf.k)
+    from latent_model.detail import LocalDetailModel, detail_beside
+
+    detail = detail or detail_beside(checkpoint)
+    transfer = Transfer(model, bank, preset.corpus.sdf.k, None, None if detail is None else LocalDetailModel.load(detail))
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
@@ -202,6 +272,16 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     persons = {corpus.identities[i].person_id for i in ids}
     tm.update(evaluate_decoder(transfer, corpus, [i for i in test if corpus.identities[i].person_id in persons], say))
     timings["decoder_s"] = time.perf_counter() - t
+    if transfer.detail is not None:
+        from latent_model.analysis.detail_eval import evaluate_detail
+
+        say("local detail (faces, fingers) on the held-out characters, every rest")
+        t = time.perf_counter()
+        held = detail_characters(preset, "test", DETAIL_PER_REST)
+        dm, detail_fig = evaluate_detail(transfer, held, preset.corpus.pose_names(), say=say)
+        tm.update(dm)
+        tm["meta.detail_characters"] = [s.id for s in held]
+        timings["detail_s"] = time.perf_counter() - t
 
     say("figures")
     t = time.perf_counter()
@@ -223,6 +303,8 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
             crop = np.array([[-0.2, -1.0, top - 0.3], [0.2, 1.0, top + 0.01]])
         ex_figs.append((kind, pose, figures.transfer_example(ex, faces, f"{corpus.identities[ids[0]].id} {kind} {pose}",
                                                              out / f"{name}.png", view, crop)))
+    if transfer.detail is not None and detail_fig:
+        figs["detail"] = _detail_figure(detail_fig, out)
     timings["figures_s"] = time.perf_counter() - t
 
     metrics: dict = dict(lat["model"])
@@ -392,6 +474,16 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
             _table(["pose", "no motion", "mean", "nearest", "oracle", "mean raw", "nearest raw", "offset nearest",
                     "gate mean", "gate nearest", "better of mean/nearest not worse than no motion", "raw: not worse"], rows), ""]
     out += _decoder_section(m, singles)
+    if any(k.startswith("detail.") for k in m):
+        from latent_model.analysis.detail_eval import markdown as detail_markdown
+
+        out += ["## 6c. Local detail: faces and fingers", "",
+                "The head and hands encoded at their own scale with co-moving samples (`lrr train detail`): latent "
+                "cosine and R_cond/noise of each face and finger pose's region delta, and the transfer of the whole "
+                f"mesh (neutral → pose) on {len(m.get('meta.detail_characters', []))} held-out characters over their "
+                "rest configurations.", "", detail_markdown(m), ""]
+        if "detail" in figs:
+            out += [f"![the paper's facial figure, made by the product]({figs['detail'].name})", ""]
     out += ["## 7. Rendered predictions", "", "source | mean | nearest | truth; predictions coloured by per-vertex error.", ""]
     out += [f"![{kind} {pose}]({path.name})" for kind, pose, path in ex_figs]
     return "\n".join(out) + "\n"

@@ -32,6 +32,8 @@ from latent_model.nn.local_detail import KINDS, LocalDetail, LocalDetailConfig
 from latent_model.regions import REGION_KIND, REGIONS, RegionSampling, region_frames, sample_region
 from latent_model.types import FINAL
 
+REL_EPS = 1e-6  # (radius units)^2, ~0.1 mm: the decoder loss's floor for an item that barely moves
+
 
 @dataclass(frozen=True)
 class LocalDetailTraining:
@@ -40,7 +42,7 @@ class LocalDetailTraining:
     net: LocalDetailConfig = field(default_factory=LocalDetailConfig)
     sampling: RegionSampling = field(default_factory=RegionSampling)
     codec_steps: int = 2000
-    decoder_steps: int = 2000
+    decoder_steps: int = 3000
     characters: int = 8  # per codec batch (each brings its neutral and `poses_per_character` poses)
     poses_per_character: int = 6
     points: int = 1024  # of a state's samples per codec step (the same indices for a character's states)
@@ -48,8 +50,8 @@ class LocalDetailTraining:
     lr: float = 5e-4
     rec: float = 30.0
     kl: float = 1e-4
-    align: float = 3.0
-    contrast: float = 0.1
+    align: float = 1.0
+    contrast: float = 1.0  # poses kept apart as strongly as characters are aligned: weaker, face poses' means merge
     decoder_batch: int = 16
     decoder_vertices: int = 1024
     decoder_lr: float = 1e-3
@@ -249,13 +251,16 @@ def train_decoder(model: LocalDetail, kind: str, data: list[RegionData], deltas:
         t = lambda a: torch.from_numpy(np.stack(a).astype(np.float32))  # noqa: E731
         mu = t(mus)
         mu = mu + cfg.mu_noise * torch.randn_like(mu)
-        loss = (dec(t(xs), t(dirs), mu, t(lens)) - t(ds)).pow(2).sum(-1).mean()
+        # relative to each item's own motion: a brow (0.1 mm mean over the head) counts as much as a jaw
+        target = t(ds)
+        se = (dec(t(xs), t(dirs), mu, t(lens)) - target).pow(2).sum(-1)
+        loss = (se.mean(dim=1) / (target.pow(2).sum(-1).mean(dim=1) + REL_EPS)).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
         if step % 500 == 0 or step == cfg.decoder_steps - 1:
-            log(f"  {kind} decoder step {step}: {loss.item():.2e} ({time.time() - t0:.0f} s)")
+            log(f"  {kind} decoder step {step}: relative error {loss.item():.3f} ({time.time() - t0:.0f} s)")
 
 
 def train_local_detail(specs: list[IdentitySpec], poses: tuple[str, ...], cfg: LocalDetailTraining, workers: int = 2,
