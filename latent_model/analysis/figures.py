@@ -138,17 +138,21 @@ def detail_closeup(ex: dict, faces: np.ndarray, region: np.ndarray, title: str, 
     """The paper's facial figure made by the product: source | mean | nearest | truth of one held-out character,
     close up on a region (vertex indices `region`: faces with all three inside are drawn), coloured by each
     mesh's displacement from the source (mm, one scale: where it moves and how much)."""
-    from latent_model.render import draw_mesh
+    from latent_model.render import draw_mesh, project
 
     inside = np.zeros(len(ex["source"]), bool)
     inside[region] = True
     keep = faces[inside[faces].all(axis=1)]
     disp = {k: np.linalg.norm(ex[k] - ex["source"], axis=1) * 1000 for k in ("mean", "nearest", "truth")}
     vmax = max(1.0, float(np.percentile(disp["truth"][region], 99.5)))
-    fig, axes = plt.subplots(1, 4, figsize=(12, 4.2))
+    fig, axes = plt.subplots(1, 4, figsize=(13, 4.6))
     for ax, k in zip(axes, ("source", "mean", "nearest", "truth")):
         values = disp.get(k)
-        draw_mesh(ax, ex[k], keep, "front", values=values, cmap="magma", vmin=0, vmax=vmax)
+        draw_mesh(ax, ex[k], keep, "front", values=values, cmap="YlOrRd", vmin=0, vmax=vmax)
+        xy = project(ex[k][region], "front")[0]
+        pad = 0.03 * float(np.ptp(xy, axis=0).max())
+        ax.set_xlim(xy[:, 0].min() - pad, xy[:, 0].max() + pad)
+        ax.set_ylim(xy[:, 1].min() - pad, xy[:, 1].max() + pad)
         if values is None:
             ax.set_title(k, fontsize=9)
         else:
