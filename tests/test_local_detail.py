@@ -135,3 +135,21 @@ def test_the_detail_evaluation_measures_the_stage(with_detail, tiny_motion, tmp_
     where = np.ones(3, bool)
     assert asymmetry_mm(np.array([[-0.001, 0, 0], [0.001, 0, 0], [0, 0, 0.001]]), mirror, where) == 0.0
     assert asymmetry_mm(np.array([[0, 0, 0.003], [0, 0, 0], [0, 0, 0]]), mirror, where) == pytest.approx(2.0)
+
+
+def test_a_pose_made_of_face_parts_is_the_stages_alone(with_detail, tiny_motion, tiny_corpus):
+    """Decoder v2 never trained on face or finger poses: with the stage, such a pose moves nothing outside its
+    region (the body's gate is 0), a body pose keeps decoder v2's motion and gate; the window says what moved."""
+    from explorer.results import Prediction
+
+    plain, _ = tiny_motion
+    _, mesh = _target(tiny_corpus, with_detail)
+    head = np.zeros(len(mesh.vertices), bool)
+    head[with_detail.regions(mesh).frames["head"].vertices] = True
+    out = with_detail.predict_detail(mesh, "browDwLf")
+    assert out.gate == 0.0 and np.array_equal(out.vertices[~head], mesh.vertices[~head])
+    body = with_detail.predict_detail(mesh, "elbowBentLf")
+    assert body.gate == plain.predict_detail(mesh, "elbowBentLf").gate and body.detail == {}
+    v = out.vertices
+    p = Prediction("mean_pose_delta", "mean", v, None, np.zeros(len(v)), None, out.gate, out.signal, None, out.detail)
+    assert "body noise gate 0.00" in p.title and "local detail: head" in p.title
