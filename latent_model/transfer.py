@@ -377,7 +377,8 @@ class Transfer:
         motion (0 for a pose whose `body` flag is off: the local detail stage's); the reported gate and signal are
         the weighted mean of the poses'."""
         poses, weights = ([a], [1.0]) if b is None else ([a, b], [1.0 - blend, blend])
-        gates, signals = zip(*((g * moves, s) for (x, n), moves in zip(poses, body) for g, s in [self.noise_gate(x, n)]))
+        gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
+        gates = [g if moves else 0.0 for g, moves in zip(gates, body)]
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
         conditions = [(*self._condition(x, 1.0, self.model.cfg.motion.reads_as(kind)), n) for x, n in poses]
