@@ -3,12 +3,14 @@
 Decoder v2 moves the body from the global code, which cannot see a brow or a finger (their deltas sit at its
 noise floor). Here each region of the source (`regions.region_frames`) is encoded at its own scale, the
 pose's region delta comes from the detail bank (the mean over training characters, or one character's) or an
-example pair (co-moving samples of A and A1), and the local decoder turns (delta, source code) into the
-region's displacement, placed in the frame that follows the region as the body prediction moved it.
+example pair (co-moving samples of A and A1); it is read as a mix of the training poses and the region moves by
+their displacement fields (`detail_fields.py`) on the source's own region, placed in the frame that follows the
+region as the body prediction moved it.
 A delta is gated by its own noise floor as the global one is (`Transfer.noise_gate`).
 
-Files: `detail.safetensors` beside a checkpoint (`lrr train detail`): the networks (`net.*`), the bank's
-deltas (`delta.POSE.REGION`) and JSON metadata (config, persons, noise floors, sampling).
+Files: `detail.safetensors` beside a checkpoint (`lrr train detail`): the region codecs (`net.*`), the bank's
+deltas (`delta.POSE.REGION`), the displacement fields (`field.REGION.anchor`, `field.REGION.values`) and JSON
+metadata (config, persons, noise floors, sampling, each region's field poses).
 """
 from __future__ import annotations
 
@@ -20,11 +22,12 @@ import numpy as np
 import torch
 
 from latent_model.atomic import atomic_write
+from latent_model.detail_fields import Placement, RegionFields
 from latent_model.detail_poses import detail_regions_of
 from latent_model.nn.local_detail import LocalDetail, LocalDetailConfig
 from latent_model.regions import REGION_KIND, REGIONS, RegionFrame, RegionSampling, region_frames, sample_region
 
-FORMAT = "lrr-detail-1"
+FORMAT = "lrr-detail-2"
 EDGE = 0.15  # of a region's reach: the local motion fades to 0 over its outer edge (no seam at the neck or wrist)
 
 
@@ -52,11 +55,14 @@ class DetailBank:
 
 
 class LocalDetailModel:
-    """The networks and the bank of the local detail stage (`load`)."""
+    """The codecs, the bank and the displacement fields of the local detail stage (`load`)."""
 
-    def __init__(self, net: LocalDetail, bank: DetailBank) -> None:
+    def __init__(self, net: LocalDetail, bank: DetailBank, fields: dict[str, RegionFields]) -> None:
         self.net = net.eval()
         self.bank = bank
+        self.fields = fields
+        # {region: (P, Z)} the mean delta of each field's pose: what a delta is read against
+        self.basis = {r: np.stack([bank.mean(p, r) for p in f.poses]) for r, f in fields.items()}
 
     # ------------------------------------------------------------------ files
     def save(self, path: Path) -> None:
@@ -65,8 +71,12 @@ class LocalDetailModel:
         tensors = {f"net.{k}": v.detach().cpu().contiguous() for k, v in self.net.state_dict().items()}
         tensors.update({f"delta.{p}.{r}": torch.from_numpy(np.ascontiguousarray(d))
                         for (p, r), d in self.bank.deltas.items()})
+        for r, f in self.fields.items():
+            tensors[f"field.{r}.anchor"] = torch.from_numpy(np.ascontiguousarray(f.anchor, np.float32))
+            tensors[f"field.{r}.values"] = torch.from_numpy(np.ascontiguousarray(f.values, np.float32))
         meta = {"format": FORMAT, "config": json.dumps(self.net.cfg.to_dict()), "persons": json.dumps(self.bank.persons),
-                "noise": json.dumps(self.bank.noise), "sampling": json.dumps(asdict(self.bank.sampling))}
+                "noise": json.dumps(self.bank.noise), "sampling": json.dumps(asdict(self.bank.sampling)),
+                "fields": json.dumps({r: f.poses for r, f in self.fields.items()})}
         atomic_write(Path(path), lambda tmp: save_file(tensors, str(tmp), metadata=meta))
 
     @staticmethod
@@ -80,8 +90,8 @@ class LocalDetailModel:
             with safe_open(str(path), framework="pt") as f:
                 meta = dict(f.metadata() or {})
                 if meta.get("format") != FORMAT:
-                    raise CheckpointError(f"{path} is not a local detail file ({FORMAT}); re-create it with "
-                                          "`lrr train detail`")
+                    raise CheckpointError(f"{path} is not a local detail file of this version ({FORMAT}); "
+                                          "re-create it with `lrr train detail`")
                 tensors = {k: f.get_tensor(k) for k in f.keys()}
         except (SafetensorError, OSError) as e:
             raise CheckpointError(f"local detail file {path} is unreadable ({e}); re-create it with "
@@ -95,16 +105,21 @@ class LocalDetailModel:
                 deltas[(pose, region)] = v.numpy()
         s = json.loads(meta["sampling"])
         sampling = RegionSampling(**{k: tuple(v) if isinstance(v, list) else v for k, v in s.items()})
-        return LocalDetailModel(net, DetailBank(deltas, json.loads(meta["persons"]), json.loads(meta["noise"]), sampling))
+        fields = {r: RegionFields(tensors[f"field.{r}.anchor"].numpy(), poses, tensors[f"field.{r}.values"].numpy())
+                  for r, poses in json.loads(meta["fields"]).items()}
+        bank = DetailBank(deltas, json.loads(meta["persons"]), json.loads(meta["noise"]), sampling)
+        return LocalDetailModel(net, bank, fields)
 
     # ------------------------------------------------------------------ per mesh
     def regions(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray, features=None,
                 seed: int = 0) -> "MeshRegions":
-        """A mesh's region frames and standardised codes (its neutral: what a prediction starts from)."""
+        """A mesh's region frames, standardised codes and places on the fields' anchors (its neutral: what a
+        prediction starts from)."""
         v = np.asarray(vertices, dtype=np.float64)
         frames = region_frames(v, faces, features)
         codes = {r: self._code(r, *sample_region(v, sdf_faces, f, self.bank.sampling, seed)) for r, f in frames.items()}
-        return MeshRegions(frames, codes, v, sdf_faces, seed)
+        placed = {r: self.fields[r].place(f.to_local(v[f.vertices])) for r, f in frames.items() if r in self.fields}
+        return MeshRegions(frames, codes, v, sdf_faces, seed, placed)
 
     def example_deltas(self, neutral: "MeshRegions", posed_vertices: np.ndarray) -> dict[str, np.ndarray]:
         """{region: standardised delta} of an example pair: the posed mesh (A's topology) sampled co-moving with
@@ -140,33 +155,31 @@ class LocalDetailModel:
         signal = float(np.linalg.norm(delta)) / floor * float(np.sqrt(averaged))
         return smooth_gate(signal), signal
 
-    @torch.no_grad()
     def displacement(self, mesh: "MeshRegions", deltas: list[tuple[dict[str, np.ndarray], float]],
                      moved: np.ndarray) -> np.ndarray:
         """(V, 3) world displacement to add to `moved` (the body prediction of the mesh, (V, 3)): for each region,
-        the sum over `deltas` [({region: delta}, weight)] of the local decoder's displacement at the delta's
-        length times its weight, in the region's frame as `moved` carries it, fading over the region's edge."""
+        the sum over `deltas` [({region: delta}, weight)] of the fields' displacement for the delta's pose mix
+        (`RegionFields.read`) times its weight, in the region's frame as `moved` carries it, fading over the
+        region's edge."""
         out = np.zeros_like(moved, dtype=np.float64)
         for r, f in mesh.frames.items():
             parts = [(d[r], w) for d, w in deltas if r in d and w != 0.0]
-            if not parts:
+            if not parts or r not in self.fields:
                 continue
-            kind = REGION_KIND[r]
-            x = torch.from_numpy(f.to_local(mesh.vertices[f.vertices]).astype(np.float32))[None]
-            mu = torch.from_numpy(np.asarray(mesh.codes[r], np.float32))[None]
-            local = np.zeros((len(f.vertices), 3))
-            for d, w in parts:
-                length = float(np.linalg.norm(d))
-                if length <= 0:
-                    continue
-                direction = torch.from_numpy(np.asarray(d / length, np.float32))[None]
-                local += w * self.net.decoders[kind](x, direction, mu, torch.tensor([length]))[0].numpy()
+            floor = self.bank.noise.get(REGION_KIND[r], 0.0)
+            mix = sum(w * RegionFields.read(d, self.basis[r], floor) for d, w in parts)
+            local = self.fields[r].displacement(mesh.placed[r], mix)
             carried = f.follow(mesh.vertices, moved)
             if carried.mirrored:
                 local[:, 2] = -local[:, 2]
             world = (local * carried.radius) @ carried.rotation.T
             out[f.vertices] += world * mesh.fade[r][:, None]
         return out
+
+    def mix(self, region: str, delta: np.ndarray) -> dict[str, float]:
+        """{pose: weight} a region delta reads as (the fields' poses it mixes, the ones above 0)."""
+        w = RegionFields.read(delta, self.basis[region], self.bank.noise.get(REGION_KIND[region], 0.0))
+        return {p: float(x) for p, x in zip(self.fields[region].poses, w) if x > 0}
 
     def _code(self, region: str, points: np.ndarray, values: np.ndarray) -> np.ndarray:
         kind = REGION_KIND[region]
@@ -176,13 +189,15 @@ class LocalDetailModel:
 @dataclass
 class MeshRegions:
     """A source mesh's region frames {region: RegionFrame}, standardised codes {region: (Z,)}, its vertices
-    (V, 3), SDF faces and the sampling seed (an example pair's posed mesh is sampled with it, co-moving)."""
+    (V, 3), SDF faces, the sampling seed (an example pair's posed mesh is sampled with it, co-moving) and where
+    each region lies on its fields' anchor {region: Placement}."""
 
     frames: dict[str, RegionFrame]
     codes: dict[str, np.ndarray]
     vertices: np.ndarray
     sdf_faces: np.ndarray
     seed: int
+    placed: dict[str, Placement]
 
     @property
     def fade(self) -> dict[str, np.ndarray]:

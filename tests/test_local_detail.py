@@ -1,6 +1,6 @@
 """The local detail stage (latent_model/detail.py, train/local_detail.py): `lrr train detail` on the tiny preset,
-its file, and what `Transfer` does with it: a face pose moves the head only, in proportion to the magnitude, from
-the source's own region code; a body pose is left to decoder v2; an example pair's region deltas are co-moving."""
+its file, and what `Transfer` does with it: a face pose moves the head only, in proportion to the magnitude, as
+the delta's mix of training poses on the source's own region; a body pose is left to decoder v2; an example pair's region deltas are co-moving."""
 import dataclasses
 
 import numpy as np
@@ -16,7 +16,7 @@ def detail(tmp_path_factory):
     from latent_model.train.local_detail import detail_training, run_local_detail
 
     path = tmp_path_factory.mktemp("detail") / "detail.safetensors"
-    cfg = dataclasses.replace(detail_training("tiny"), codec_steps=40, decoder_steps=150)
+    cfg = dataclasses.replace(detail_training("tiny"), codec_steps=40)
     run_local_detail(preset("tiny"), cfg, path, workers=1, log=lambda _m: None)
     return path, LocalDetailModel.load(path)
 
@@ -46,6 +46,10 @@ def test_the_file_holds_the_networks_and_the_bank(detail, tmp_path):
     other = LocalDetailModel.load(again)
     for k, v in model.net.state_dict().items():
         assert np.array_equal(v.numpy(), other.net.state_dict()[k].numpy()), k
+    assert {"head", "hand_left"} <= set(model.fields) and "browDwLf" in model.fields["head"].poses
+    for r, f in model.fields.items():
+        assert np.array_equal(f.values, other.fields[r].values) and f.poses == other.fields[r].poses
+        assert f.values.shape == (len(f.poses), len(f.anchor), 3) and np.abs(f.values).max() > 0
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a file")
     with pytest.raises(CheckpointError, match="lrr train detail"):
@@ -71,18 +75,28 @@ def test_a_face_pose_moves_the_head_only_and_scales_with_the_magnitude(with_deta
     assert np.array_equal(with_detail.predict(mesh, "elbowBentLf"), plain.predict(mesh, "elbowBentLf"))
 
 
-def test_the_detail_reads_the_source_region_code(with_detail, tiny_corpus):
-    from latent_model.detail import MeshRegions
+def test_the_detail_reads_the_delta_and_the_source_region(with_detail, tiny_corpus):
+    """The displacement is the delta's mix of the training poses (a pose's mean delta reads as that pose alone, the
+    sum of two as both), placed on the source's own region: another head shape moves differently."""
+    from dataclasses import replace
 
     _, mesh = _target(tiny_corpus, with_detail)
+    detail = with_detail.detail
     regions = with_detail.regions(mesh)
-    d, _ = with_detail.detail.pose_deltas("browDwLf")
     moved = mesh.vertices.astype(np.float64)
-    a = with_detail.detail.displacement(regions, [(d, 1.0)], moved)
-    other = MeshRegions(regions.frames, {r: c + 1.0 for r, c in regions.codes.items()}, regions.vertices,
-                        regions.sdf_faces, regions.seed)
-    b = with_detail.detail.displacement(other, [(d, 1.0)], moved)
-    assert np.abs(a - b).max() > 1e-6
+    brow, cheek = detail.bank.mean("browDwLf", "head"), detail.bank.mean("puffLf", "head")
+    assert detail.mix("head", brow) == pytest.approx({"browDwLf": 1.0})
+    # (scaled above the noise floor: the tiny model's deltas are not, and a pose under it is dropped from a mix)
+    s = 2 * detail.bank.noise["head"] / min(np.linalg.norm(brow), np.linalg.norm(cheek))
+    assert detail.mix("head", s * (brow + cheek)) == pytest.approx({"browDwLf": s, "puffLf": s})
+    a = detail.displacement(regions, [({"head": s * brow}, 1.0)], moved)
+    b = detail.displacement(regions, [({"head": s * cheek}, 1.0)], moved)
+    both = detail.displacement(regions, [({"head": s * (brow + cheek)}, 1.0)], moved)
+    assert np.abs(a - b).max() > 1e-5 and np.allclose(both, a + b, atol=1e-9)
+    f = regions.frames["head"]
+    wider = f.to_local(moved[f.vertices]) * np.array([1.3, 1.0, 0.8])
+    other = replace(regions, placed={**regions.placed, "head": detail.fields["head"].place(wider)})
+    assert np.abs(detail.displacement(other, [({"head": s * brow}, 1.0)], moved) - a).max() > 1e-6
 
 
 def test_an_example_pair_gives_co_moving_region_deltas(with_detail, generator, tiny_corpus):

@@ -1,7 +1,7 @@
-"""Local detail networks: a region SDF-VAE (the head's or a hand's code, at the region's own scale) and a local
-decoder that turns a region's latent delta into the displacement of the region's vertices.
+"""Local detail networks: a region SDF-VAE per region kind (the head's or a hand's code, at the region's own scale).
+What a region delta does to the region's vertices is `detail_fields.py`'s.
 
-Both work in region-local coordinates in radius units (`latent_model/regions.py`), so one head network reads
+It works in region-local coordinates in radius units (`latent_model/regions.py`), so one head network reads
 every head and one hand network both hands (the left mirrored), whatever the body's rest pose.
 """
 from __future__ import annotations
@@ -10,10 +10,8 @@ from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from latent_model.config import ModelConfig
-from latent_model.nn.common import fourier_features
 from latent_model.nn.encoder import SdfSetEncoder
 from latent_model.nn.sdf_decoder import SdfDecoder
 
@@ -29,8 +27,6 @@ class LocalDetailConfig:
     enc_out_hidden: int = 256
     sdf_hidden: int = 128
     sdf_layers: int = 4
-    dec_hidden: int = 128  # local decoder width
-    dec_layers: int = 4
     fourier: int = 6  # frequencies of the local position (radius units: down to 1/64 of the radius)
 
     def codec_config(self) -> ModelConfig:
@@ -56,38 +52,13 @@ class RegionCodec(nn.Module):
         self.sdf_decoder = SdfDecoder(cfg.codec_config())
 
 
-class LocalDecoder(nn.Module):
-    """Per region vertex: its local position, FiLM-conditioned on (the delta's direction, the source region's
-    code) -> a local displacement, times the delta's length (so no delta, no motion, and the motion scales
-    continuously with the magnitude)."""
-
-    def __init__(self, cfg: LocalDetailConfig) -> None:
-        super().__init__()
-        h, n = cfg.dec_hidden, cfg.dec_layers
-        self.fourier, self.hidden, self.n_layers = cfg.fourier, h, n
-        self.inp = nn.Linear(3 + 6 * cfg.fourier, h)
-        self.cond = nn.Sequential(nn.Linear(2 * cfg.latent, 256), nn.SiLU(), nn.Linear(256, 2 * h * n))
-        self.layers = nn.ModuleList(nn.Linear(h, h) for _ in range(n))
-        self.out = nn.Linear(h, 3)
-
-    def forward(self, x: torch.Tensor, direction: torch.Tensor, mu: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
-        """x (B, N, 3) region-local vertices, direction (B, Z) unit delta, mu (B, Z) source code (both
-        standardised), length (B,) -> (B, N, 3) local displacements (radius units)."""
-        film = self.cond(torch.cat([direction, mu], dim=-1)).view(-1, self.n_layers, 2, self.hidden)
-        h = F.silu(self.inp(fourier_features(x, self.fourier)))
-        for i, layer in enumerate(self.layers):
-            h = F.silu(layer(h) * (1 + film[:, i, 0, None]) + film[:, i, 1, None])
-        return self.out(h) * length[:, None, None]
-
-
 class LocalDetail(nn.Module):
-    """Every region kind's codec and local decoder, with the codes' standardisation (a buffer per kind)."""
+    """Every region kind's codec, with the codes' standardisation (a buffer per kind)."""
 
     def __init__(self, cfg: LocalDetailConfig) -> None:
         super().__init__()
         self.cfg = cfg
         self.codecs = nn.ModuleDict({k: RegionCodec(cfg) for k in KINDS})
-        self.decoders = nn.ModuleDict({k: LocalDecoder(cfg) for k in KINDS})
         for k in KINDS:
             self.register_buffer(f"mean_{k}", torch.zeros(cfg.latent))
             self.register_buffer(f"scale_{k}", torch.ones(cfg.latent))

@@ -1,0 +1,50 @@
+"""The local detail stage's displacement fields (latent_model/detail_fields.py) on synthetic regions: the affine
+alignment finds a known map, a field pooled from differently proportioned characters lands where their motion
+was, and a delta is read as the mix of poses that makes it, dropping what is below the noise floor."""
+import numpy as np
+import pytest
+
+from latent_model.detail_fields import RegionFields, affine_align, build_fields
+
+
+def _ellipsoid(n: int, seed: int) -> np.ndarray:
+    x = np.random.default_rng(seed).normal(size=(n, 3))
+    return x / np.linalg.norm(x, axis=1, keepdims=True) * np.array([1.0, 0.8, 1.2])
+
+
+def test_affine_align_recovers_a_stretch_and_a_shift():
+    anchor = _ellipsoid(3000, 0)
+    A0 = np.diag([1.25, 0.9, 1.0])
+    x = _ellipsoid(2500, 1) @ np.linalg.inv(A0).T - np.array([0.1, 0.0, -0.05])
+    A, b = affine_align(x, anchor)
+    assert np.allclose(A, A0, atol=0.05) and np.allclose(x @ A.T + b, _ellipsoid(2500, 1), atol=0.05)
+
+
+def test_a_field_pooled_from_other_proportions_lands_on_the_moving_part():
+    anchor = _ellipsoid(3000, 0)
+    bump = lambda p: np.exp(-np.sum((p - [0, 0, 1.2]) ** 2, axis=1) / 0.05)[:, None] * [0, 0, 0.1]  # noqa: E731
+    chars = []
+    for seed, stretch in ((0, 1.0), (2, 1.3), (3, 0.8)):
+        x = _ellipsoid(3000, seed) * [stretch, 1.0, 1.0 / stretch]  # the top moves with the shape
+        top = bump(x * [1.0 / stretch, 1.0, stretch])  # the same part of each character moves
+        chars.append((x, {"up": x + top, "still": x}))
+    f = build_fields(chars, ["up", "still"])
+    truth = bump(anchor)
+    moving = truth[:, 2] > 0.05
+    assert np.abs(f.values[0][moving, 2] - truth[moving, 2]).mean() < 0.2 * truth[moving, 2].mean()
+    assert np.abs(f.values[1]).max() == 0.0
+    # placed on a new character of other proportions, the motion comes back in its own coordinates
+    y = _ellipsoid(2000, 5) * [1.15, 1.0, 1.0 / 1.15]
+    d = f.displacement(f.place(y), np.array([0.5, 0.0]))
+    top = bump(y * [1 / 1.15, 1.0, 1.15])[:, 2] > 0.05
+    assert d[top, 2].mean() > 0.3 * 0.5 * 0.1 and np.abs(d[~top]).mean() < 0.1 * d[top, 2].mean()
+
+
+def test_a_delta_reads_as_its_mix_of_poses_above_the_floor():
+    basis = np.array([[1.0, 0.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 2.0]])
+    assert RegionFields.read(0.5 * basis[0] + 2.0 * basis[2], basis, 0.1) == pytest.approx([0.5, 0.0, 2.0])
+    # a little of the third pose (0.02 of its 2.0 length: under the floor) is dropped, not kept as noise
+    assert RegionFields.read(basis[1] + 0.01 * basis[2], basis, 0.1) == pytest.approx([0.0, 1.0, 0.0])
+    assert not RegionFields.read(-basis[0], basis, 0.1).any()  # no pose makes the opposite motion
+    # a delta all under the floor still reads as its best pose (the noise gate, not the read, judges it)
+    assert RegionFields.read(0.05 * basis[0], basis, 0.1) == pytest.approx([0.05, 0.0, 0.0])
