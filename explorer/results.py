@@ -79,6 +79,7 @@ class Prediction:
     signal: float = float("inf")  # conditioning delta / latent noise floor
     novelty: Novelty | None = None  # how far the target's latent is from training (None: not judged)
     detail: dict[str, float] = field(default_factory=dict)  # the local detail stage's gate per region it moved
+    detail_mix: dict[str, dict[str, float]] = field(default_factory=dict)  # {region: {pose: weight}} it read
 
     @property
     def is_example(self) -> bool:
@@ -96,8 +97,11 @@ class Prediction:
         if self.gate < 1.0:
             text += f"\n{'body ' if self.detail else ''}noise gate {self.gate:.2f}: delta {self.signal:.1f}x its noise"
         if self.detail:
+            from latent_model.detail import describe_mix
+
             text += "\nlocal detail: " + ", ".join(f"{r.replace('_', ' ')}" + (f" gate {g:.2f}" if g < 1.0 else "")
                                                    for r, g in self.detail.items())
+            text += "".join(f"\n  {r.replace('_', ' ')} = {describe_mix(m, 2)}" for r, m in self.detail_mix.items() if m)
         if self.novelty is not None and self.novelty.out_of_distribution:
             text += f"\nout of distribution: latent {self.novelty.distance:.1f} > {self.novelty.threshold:.1f}"
         return text

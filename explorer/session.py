@@ -315,7 +315,7 @@ class Session:
         novelty = out.novelty if out.novelty is not None else self._novelty(prepared)
         strategy, label = (strategy, out.label) if example is None else ("example", example.name)
         return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal,
-                          novelty, out.detail), dt
+                          novelty, out.detail, out.detail_mix), dt
 
     def _novelty(self, prepared):
         """The target's Novelty when the bank can judge it (a predictor that did not read the latent

@@ -178,6 +178,8 @@ class LocalDetailModel:
 
     def mix(self, region: str, delta: np.ndarray) -> dict[str, float]:
         """{pose: weight} a region delta reads as (the fields' poses it mixes, the ones above 0)."""
+        if region not in self.fields:
+            return {}
         w = RegionFields.read(delta, self.basis[region], self.bank.noise.get(REGION_KIND[region], 0.0))
         return {p: float(x) for p, x in zip(self.fields[region].poses, w) if x > 0}
 
@@ -203,6 +205,13 @@ class MeshRegions:
     def fade(self) -> dict[str, np.ndarray]:
         """{region: (N,) weight of the local motion}: 1 inside, down to 0 over the region's outer edge."""
         return {r: np.clip(f.depth / EDGE, 0.0, 1.0) for r, f in self.frames.items()}
+
+
+def describe_mix(mix: dict[str, float], most: int = 3) -> str:
+    """"cornerUpLf 0.92 + puffLf 0.10": the largest weights of a region's pose mix, for the window and the CLI."""
+    top = sorted(mix.items(), key=lambda kv: -kv[1])
+    text = " + ".join(f"{p} {w:.2f}" for p, w in top[:most])
+    return text + (f" + {len(top) - most} more" if len(top) > most else "")
 
 
 def detail_beside(checkpoint: str | Path) -> Path | None:

@@ -149,8 +149,12 @@ def _print_result(result: "TransferOutput", novelty: dict) -> None:
               f"(the latent noise floor, over sqrt(N) for a mean of N deltas; below 1.5x it carries no usable signal "
               f"and the {'body motion' if result.detail else 'prediction'} keeps the source)")
     if result.detail:
+        from latent_model.detail import describe_mix
+
         print("local detail (faces, fingers): " + ", ".join(
-            f"{r.replace('_', ' ')} gate {g:.2f}" for r, g in result.detail.items()))
+            f"{r.replace('_', ' ')} gate {g:.2f}" + (f" (reads as {describe_mix(result.detail_mix[r])})"
+                                                      if result.detail_mix.get(r) else "")
+            for r, g in result.detail.items()))
 
 
 def run_cli(args) -> None:

@@ -113,6 +113,8 @@ class TransferOutput:
     predictor: Predictor  # what produced `raw`
     novelty: "Novelty | None" = None  # how far the mesh's latent is from training (when its latent was read)
     detail: dict[str, float] = field(default_factory=dict)  # the local detail stage's gate per region it moved
+    # {region: {pose: weight}}: the training poses each region's delta read as (slider weights and magnitude in)
+    detail_mix: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -304,16 +306,17 @@ class Transfer:
             raw = self._fields_or_network(mesh, predictor, d, magnitude, kind)
             gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
         detail_gates: dict[str, float] = {}
+        mix: dict[str, dict[str, float]] = {}
         if self.detail is not None and kind == "neutral_to_pose":
             person = None if label in ("mean", "oracle", "example") else label.split("@")[0]
             a_part = (detail_delta or {}, 1) if delta is not None else self.detail.pose_deltas(pose, person)
             parts = [(a_part, 1.0 - blend if d_b is not None else 1.0)]
             if d_b is not None:
                 parts.append((self.detail.pose_deltas(pose_b, person), blend))
-            raw, gated, detail_gates = self._add_detail(mesh, raw, gated, parts, magnitude)
+            raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
-        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates)
+        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix)
 
     def _local_only(self, pose: str | None, kind: PairKind) -> bool:
         """Whether the local detail stage moves this pose entirely (every part a face or finger pose it holds): the
@@ -325,11 +328,12 @@ class Transfer:
         return all(detail_regions_of(c) for c in (p.components or (p.name,)))
 
     def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float
-                    ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-        """(raw, gated, {region: gate}) with the local detail of `parts` [(({region: delta}, averaged), weight)]
-        added, each region's delta weighed by the slider weight, the magnitude and (gated) its own noise gate."""
+                    ) -> tuple[np.ndarray, np.ndarray, dict[str, float], dict[str, dict[str, float]]]:
+        """(raw, gated, {region: gate}, {region: {pose: weight}}) with the local detail of `parts`
+        [(({region: delta}, averaged), weight)] added, each region's delta weighed by the slider weight, the
+        magnitude and (gated) its own noise gate; the last: what the deltas read as (`LocalDetailModel.mix`)."""
         if magnitude == 0 or not any(d for (d, _), _ in parts):
-            return raw, gated, {}
+            return raw, gated, {}, {}
         regions = self.regions(mesh)
         gates: dict[str, float] = {}
         ungated, weighed = [], []
@@ -340,9 +344,14 @@ class Transfer:
             for r, d in deltas.items():
                 ungated.append(({r: d}, w * magnitude))
                 weighed.append(({r: d}, w * magnitude * g[r]))
+        mix: dict[str, dict[str, float]] = {}
+        for part, w in ungated:
+            for r, d in part.items():
+                for pose, x in self.detail.mix(r, d).items():
+                    mix.setdefault(r, {})[pose] = mix.get(r, {}).get(pose, 0.0) + w * x
         raw = (raw + self.detail.displacement(regions, ungated, raw)).astype(np.float32)
         gated = (gated + self.detail.displacement(regions, weighed, gated)).astype(np.float32)
-        return raw, gated, gates
+        return raw, gated, gates, mix
 
     def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""
