@@ -23,6 +23,7 @@ MOVING_MM = 1.0  # a vertex moves when it moves more than this and more than MOV
 MOVING_SHARE = 0.1
 CLOSE_UP = 0.2  # what moves is framed close when its box's diagonal is under this share of the height
 PAD = 0.35  # a close-up's box grows by this share of its size on each side
+REGION_TRIM = 0.05  # of a region's vertices cut at each end of each axis when it is framed (no pad: a narrow view fits by width)
 MIN_SIZE = 0.12  # metres: the smallest box a close-up shows (a brow alone would fill the view with a few cm)
 
 
@@ -39,8 +40,9 @@ class Framing:
         return "what moves" if self.region == "moving" else FOCUS_LABELS[self.region].lower()
 
 
-def _box(points: np.ndarray, pad: float = 0.0, min_size: float = 0.0) -> tuple[float, ...]:
-    lo, hi = points.min(axis=0), points.max(axis=0)
+def _box(points: np.ndarray, pad: float = 0.0, min_size: float = 0.0, trim: float = 0.0) -> tuple[float, ...]:
+    """(xmin, xmax, ymin, ymax, zmin, zmax) of points (N, 3), the `trim` share cut at each end of each axis."""
+    lo, hi = np.quantile(points, trim, axis=0), np.quantile(points, 1.0 - trim, axis=0)
     centre, half = (lo + hi) / 2, np.maximum((hi - lo) / 2 * (1 + 2 * pad), min_size / 2)
     return tuple(float(x) for pair in zip(centre - half, centre + half) for x in pair)
 
@@ -93,4 +95,6 @@ def frame(focus: str, source: np.ndarray, regions: Callable[[], dict[str, np.nda
     masks = None if focus == "body" else regions()
     if masks is None or not masks.get(focus, np.zeros(1, bool)).any():
         return body
-    return Framing(focus, _box(source[masks[focus]], PAD / 2, MIN_SIZE))
+    # a region reaches from its extremity past the chin or the wrist: its sparse outer rim (the neck and shoulders)
+    # would set the box, a head framed 30 cm wide; the densely meshed part sets it
+    return Framing(focus, _box(source[masks[focus]], 0.0, MIN_SIZE, REGION_TRIM))

@@ -69,7 +69,7 @@ def test_small_motions_are_framed_close_up_and_broad_ones_show_the_body(body, re
 def test_without_motion_the_poses_own_region_is_framed(body):
     v, regions, _ = body["bind"]
     f = frame("auto", v, lambda: regions, [None, v.copy()], "browDwLf")  # a gated face pose on an opened mesh
-    assert f.region == "head" and _inside(f.bounds, v[regions["head"]]) == 1.0
+    assert f.region == "head" and _inside(f.bounds, v[regions["head"]]) >= 0.7
     assert _inside(f.bounds, v[regions["hand_left"]]) == 0.0
     assert frame("auto", v, lambda: regions, [None, v.copy()], "fingerKnuckleA01Rt").region == "hand_right"
     assert frame("auto", v, lambda: regions, [None, v.copy()], "elbowBentLf").region == "body"
@@ -83,7 +83,9 @@ def test_a_pinned_focus_frames_its_region_whatever_moves(body):
     v, regions, posed = body["tpose"]
     for focus in ("head", "hand_left", "hand_right"):
         f = frame(focus, v, lambda: regions, [posed["kneeBentRt"], None], "kneeBentRt")
-        assert f.region == focus and _inside(f.bounds, v[regions[focus]]) == 1.0
+        assert f.region == focus and _inside(f.bounds, v[regions[focus]]) >= 0.7  # its outer 5 % on each axis trimmed
+        # the region itself, not its rim: a head box as wide as the shoulders showed the whole body in a narrow view
+        assert max(f.bounds[1] - f.bounds[0], f.bounds[3] - f.bounds[2]) < (0.3 if focus == "head" else 0.25)
     assert frame("body", v, lambda: regions, [posed["browDwLf"]], "browDwLf").region == "body"
     assert set(FOCUS_CHOICES) == {"auto", "body", "head", "hand_left", "hand_right"}
     with pytest.raises(ValueError, match="focus"):
