@@ -18,6 +18,9 @@ from scipy.spatial import cKDTree
 
 ALIGN_ITERATIONS = 30
 NEIGHBOURS = 4  # anchor points a target vertex reads, by inverse distance
+# poses whose mean deltas point this much apart are antagonists: a mix holds one of them (validation, one
+# character's own face deltas: 0.33 explained with both allowed, 0.45-0.51 at -0.7; at -0.6 a jaw drops its smile)
+ANTAGONIST = -0.7
 
 
 def affine_align(x: np.ndarray, anchor: np.ndarray, iterations: int = ALIGN_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
@@ -75,10 +78,18 @@ class RegionFields:
         """(P,) non-negative weights of the poses whose mean deltas are `basis` (P, Z) that best make `delta` (Z,).
         A pose contributing less than the noise floor of one delta is dropped and the rest refitted: one
         character's delta (a nearest identity, an example pair) otherwise fills its noise with small amounts of
-        every other pose, and a jaw at 2 % still moves a chin by a millimetre. The largest contribution stays
-        whatever its size: whether a delta is signal at all is the noise gate's to say (`LocalDetailModel.gate`)."""
+        every other pose, and a jaw at 2 % still moves a chin by a millimetre. Of two antagonists (mean deltas
+        at cosine < ANTAGONIST: a brow down and up) only the larger stays: together they cancel in the latent but
+        not on the face, and one character's delta read as browDw 0.6 + browUp 0.6 moved a brow that stays still.
+        The largest contribution stays whatever its size: whether a delta is signal at all is the noise gate's
+        to say (`LocalDetailModel.gate`)."""
         c, _ = nnls(basis.T.astype(np.float64), np.asarray(delta, np.float64))
-        contribution = c * np.linalg.norm(basis, axis=1)
+        length = np.linalg.norm(basis, axis=1)
+        contribution = c * length
+        unit = basis / np.maximum(length, 1e-12)[:, None]
+        for a, b in zip(*np.nonzero(np.triu(unit @ unit.T < ANTAGONIST, 1))):
+            if contribution[a] > 0 and contribution[b] > 0:
+                contribution[b if contribution[a] >= contribution[b] else a] = 0.0
         keep = contribution >= floor
         keep[np.argmax(contribution)] |= contribution.max() > 0
         out = np.zeros(len(basis))

@@ -46,5 +46,9 @@ def test_a_delta_reads_as_its_mix_of_poses_above_the_floor():
     # a little of the third pose (0.02 of its 2.0 length: under the floor) is dropped, not kept as noise
     assert RegionFields.read(basis[1] + 0.01 * basis[2], basis, 0.1) == pytest.approx([0.0, 1.0, 0.0])
     assert not RegionFields.read(-basis[0], basis, 0.1).any()  # no pose makes the opposite motion
+    # antagonists (mean deltas pointing apart, a brow down and up) are never mixed: the larger stays
+    anti = np.array([[1.0, 0.0, 0.0], [-0.9, 0.3, 0.0], [0.0, 0.0, 1.0]])
+    w = RegionFields.read(0.8 * anti[0] + 0.5 * anti[1] + anti[2], anti, 0.01)
+    assert w[1] == 0.0 and w[0] > 0 and w[2] == pytest.approx(1.0)
     # a delta all under the floor still reads as its best pose (the noise gate, not the read, judges it)
     assert RegionFields.read(0.05 * basis[0], basis, 0.1) == pytest.approx([0.05, 0.0, 0.0])
