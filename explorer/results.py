@@ -94,7 +94,9 @@ class Prediction:
             cond = f" ({self.label})" if self.strategy != "mean_pose_delta" and not self.strategy.startswith("identity:") else ""
         what, mm = ("error", self.error_mm) if self.error_mm is not None else ("displacement", self.displacement_mm)
         text = f"{name}{cond}\n{what} mean {mm.mean():.1f} mm\n{what} max {mm.max():.1f} mm"
-        if self.gate < 1.0:
+        if self.gate == 0.0 and self.detail:
+            text += "\nbody: no motion (local detail alone)"
+        elif self.gate < 1.0:
             text += f"\n{'body ' if self.detail else ''}noise gate {self.gate:.2f}: delta {self.signal:.1f}x its noise"
         if self.detail:
             from latent_model.detail import describe_mix

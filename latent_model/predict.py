@@ -144,7 +144,9 @@ def _print_result(result: "TransferOutput", novelty: dict) -> None:
     for name, n in novelty.items():
         if n is not None and (w := n.warning(name)):
             print(w)
-    if result.gate < 1.0:
+    if result.gate == 0.0 and result.detail:
+        print("body motion: none; the local detail stage alone moves this pose")
+    elif result.gate < 1.0:
         print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x its sampling noise "
               f"(the latent noise floor, over sqrt(N) for a mean of N deltas; below 1.5x it carries no usable signal "
               f"and the {'body motion' if result.detail else 'prediction'} keeps the source)")

@@ -166,7 +166,7 @@ def test_a_pose_made_of_face_parts_is_the_stages_alone(with_detail, tiny_motion,
     assert body.gate == plain.predict_detail(mesh, "elbowBentLf").gate and body.detail == {}
     v = out.vertices
     p = Prediction("mean_pose_delta", "mean", v, None, np.zeros(len(v)), None, out.gate, out.signal, None, out.detail)
-    assert "body noise gate 0.00" in p.title and "local detail: head" in p.title
+    assert "body: no motion (local detail alone)" in p.title and "local detail: head" in p.title
     # what the head's delta read as: the pose itself, alone (the bank's mean delta of a field's pose)
     assert set(out.detail_mix) == {"head"} and max(out.detail_mix["head"], key=out.detail_mix["head"].get) == "browDwLf"
     p = Prediction("mean_pose_delta", "mean", v, None, np.zeros(len(v)), None, out.gate, out.signal, None, out.detail,
