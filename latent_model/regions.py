@@ -2,7 +2,7 @@
 
 The body's SDF samples put a few hundred points on a face and its reconstruction error (~6 mm) is larger
 than a brow's motion: the global code cannot see a face or a finger. Here each region is located on the
-surface (`surface.detail_regions`: any rest pose, any topology), given a frame that turns with it (the mean
+surface (`surface.detail_depth`: any rest pose, any topology), given a frame that turns with it (the mean
 of its vertices' limb frames, so a hand held anywhere reads the same) and a scale (its area-weighted RMS
 radius), and sampled inside that frame: points are region-local and in units of the radius, signed
 distances too. The left hand is mirrored (its lateral axis negated) so one hand encoder reads both hands.
@@ -121,16 +121,16 @@ def rigid_motion(a: np.ndarray, b: np.ndarray, depth: np.ndarray, tolerance: flo
 def region_frames(vertices: np.ndarray, faces: np.ndarray, features=None) -> dict[str, RegionFrame]:
     """The head's and both hands' frames on a humanoid mesh (V, 3) in the canonical frame (Z up, facing -Y).
     `features`: its `surface.SurfaceFeatures` if already computed."""
-    from latent_model.surface import DETAIL_REACH, EXTREMITIES, detail_regions, surface_features
+    from latent_model.surface import detail_depth, surface_features
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     sf = features if features is not None else surface_features(v, f)
-    masks = detail_regions(sf.coords)
+    depths = detail_depth(sf.coords)
     areas = _vertex_areas(v, f)
     out = {}
     for name in REGIONS:
-        idx = np.flatnonzero(masks[name])
+        idx = np.flatnonzero(depths[name] > 0)
         if len(idx) < 16:
             raise ValueError(f"the {name.replace('_', ' ')} region has {len(idx)} vertices: the mesh is not a "
                              "humanoid the surface features can read")
@@ -138,7 +138,7 @@ def region_frames(vertices: np.ndarray, faces: np.ndarray, features=None) -> dic
         centre = w @ v[idx]
         rotation = _nearest_rotation(np.einsum("n,nij->ij", w, sf.frames[idx].astype(np.float64)))
         radius = float(np.sqrt(w @ ((v[idx] - centre) ** 2).sum(axis=1)))
-        depth = 1.0 - sf.coords[idx, 1 + EXTREMITIES.index(name)] / DETAIL_REACH[name]
+        depth = depths[name][idx]
         out[name] = RegionFrame(name, idx, depth.astype(np.float32), centre, rotation, radius, name in MIRRORED)
     return out
 

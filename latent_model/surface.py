@@ -169,13 +169,33 @@ def _name_extremities(points: np.ndarray) -> list[int]:
     return [int(head), int(hands[0]), int(hands[1]), int(feet[0]), int(feet[1])]
 
 
-# How far (geodesic, over the height) a detail region reaches from its extremity: from the head top over the face
-# (the path runs over the brow and nose) to below the chin (an open jaw moves skin at 0.23 H on anny), a fingertip
-# to the wrist (0.11 H).
+# How far (geodesic, over the height) a detail region reaches: the head from its top over the face (the path runs
+# over the brow and nose) to below the chin (an open jaw moves skin at 0.23 H on anny); a hand from its extremity
+# down the arm to the wrist (0.11 H), measured as distance from the torso centre, so every finger of the hand is in.
 DETAIL_REACH = {"head": 0.24, "hand_left": 0.12, "hand_right": 0.12}
+# A hand's vertices lie this near (geodesic, over the height) to its extremity: the farthest fingertip and thumb of a
+# large hand are 0.15-0.2 H away over the palm, so a ball of 0.12 H about the middle fingertip (the regions before)
+# left half of a large hand's little finger out of the region.
+HAND_BALL = 0.25
+
+
+def detail_depth(coords: np.ndarray) -> dict[str, np.ndarray]:
+    """{region: (V,) depth}: > 0 inside the region of local detail (the head, each hand), 1 at its extremity, 0 at
+    its boundary (the neck, the wrist), <= 0 outside; from `SurfaceFeatures.coords` (V, 6), so in any rest pose
+    and topology. The head is a ball about its top; a hand is cut across the wrist: what lies within
+    DETAIL_REACH of the extremity's distance from the torso centre."""
+    out = {}
+    for name, reach in DETAIL_REACH.items():
+        own = coords[:, 1 + EXTREMITIES.index(name)].astype(np.float64)
+        if name == "head":
+            out[name] = 1.0 - own / reach
+        else:
+            centre = coords[:, 0].astype(np.float64)
+            tip = centre[int(np.argmin(own))]
+            out[name] = np.where(own < HAND_BALL, np.minimum(1.0 - (tip - centre) / reach, 1.0), -1.0)
+    return out
 
 
 def detail_regions(coords: np.ndarray) -> dict[str, np.ndarray]:
-    """(V,) bool masks of the regions of local detail (the head, each hand) from `SurfaceFeatures.coords` (V, 6):
-    located by surface distance from their extremity, so in any rest pose and topology."""
-    return {name: coords[:, 1 + EXTREMITIES.index(name)] < reach for name, reach in DETAIL_REACH.items()}
+    """(V,) bool masks of the regions of local detail (the head, each hand): `detail_depth` > 0."""
+    return {name: depth > 0 for name, depth in detail_depth(coords).items()}

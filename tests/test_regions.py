@@ -92,3 +92,22 @@ def test_the_frame_follows_the_still_part_not_what_deforms_inside():
         assert np.abs(rr - r).max() < 1e-6 and np.abs(tt - t).max() < 1e-6
     plain, _ = rigid_motion(a, b, np.ones(len(a)), tolerance=1e-4, iterations=1)
     assert np.abs(plain - r).max() > 1e-3  # one unweighted fit tilts with what moves
+
+
+@pytest.mark.parametrize("hand_scale", [0.0, 1.0])
+def test_every_finger_lies_deep_in_its_hand_region(generator, hand_scale):
+    """A hand region is cut across the wrist, so a large hand's little fingertip is in it (a ball about the middle
+    fingertip left half of it out), far from the faded edge, and the still palm is the region's base (low depth)."""
+    from latent_model.detail import EDGE
+
+    person = IdentitySpec("hands", "train", {}, {"l-hand-scale-incr": hand_scale, "r-hand-scale-incr": hand_scale})
+    v = generator.neutral(person).astype(np.float64)
+    frames = region_frames(v, generator.faces)
+    for pose, region in (("fingerKnuckleD03Lf", "hand_left"), ("fingerKnuckleA03Rt", "hand_right")):
+        moved = np.linalg.norm(getattr(generator.pose(person, pose), FINAL) - v, axis=1) > 5e-4
+        f = frames[region]
+        depth = dict(zip(f.vertices, f.depth))
+        assert moved.sum() > 50 and all(i in depth for i in np.flatnonzero(moved)), pose
+        assert min(depth[i] for i in np.flatnonzero(moved)) > 2 * EDGE, pose
+    # the head's region is untouched by a hand's size, and the hands do not reach the head
+    assert not (set(frames["hand_left"].vertices) & set(frames["head"].vertices))
