@@ -312,10 +312,12 @@ class Session:
         dt = time.perf_counter() - t
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
-        novelty = out.novelty if out.novelty is not None else self._novelty(prepared)
+        # the corrective fields read the region's shape, not the latent (the threshold would call a posed source novel)
+        reads_latent = out.predictor != "correctives" or "mu" in prepared.derived()
+        novelty = out.novelty if out.novelty is not None or not reads_latent else self._novelty(prepared)
         strategy, label = (strategy, out.label) if example is None else ("example", example.name)
         return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal,
-                          novelty, out.detail, out.detail_mix), dt
+                          novelty, out.detail, out.detail_mix, out.predictor, out.note), dt
 
     def _novelty(self, prepared):
         """The target's Novelty when the bank can judge it (a predictor that did not read the latent

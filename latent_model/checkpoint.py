@@ -60,6 +60,20 @@ def read_metadata(path: Path) -> dict:
     return meta
 
 
+def read_stage_file(path: str | Path, fmt: str, what: str, remedy: str) -> tuple[dict, dict]:
+    """(metadata, {name: tensor}) of a stage's safetensors file (the local detail, the corrective fields) whose
+    metadata `format` must be `fmt`; anything else raises CheckpointError naming `what` and the `remedy` command."""
+    path = Path(path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            meta = dict(f.metadata() or {})
+            if meta.get("format") != fmt:
+                raise CheckpointError(f"{path} is not a {what} file of this version ({fmt}); re-create it with `{remedy}`")
+            return meta, {k: f.get_tensor(k) for k in f.keys()}
+    except (SafetensorError, OSError) as e:
+        raise CheckpointError(f"{what} file {path} is unreadable ({e}); re-create it with `{remedy}`") from e
+
+
 def stored_preset(path: Path) -> Preset:
     """The preset a checkpoint was trained with."""
     return Preset.from_dict(json.loads(read_metadata(path)["preset"]))

@@ -265,7 +265,7 @@ def cmd_train(args) -> None:
     init_distributed()
     done = False
     try:
-        _train_detail(args) if args.phase == "detail" else _train(args)
+        {"detail": _train_detail, "correctives": _train_correctives}.get(args.phase, _train)(args)
         done = True
     finally:
         close_distributed(wait=done)
@@ -287,6 +287,24 @@ def _train_detail(args) -> None:
     print(f"training the local detail stage (head, hands) of preset {args.preset}; -> {out}")
     t = time.perf_counter()
     run_local_detail(p, cfg, out, workers=args.workers, log=print if not args.quiet else (lambda _m: None))
+    print(f"done in {time.perf_counter() - t:.1f} s; {out} is read beside {run_dir / 'model.safetensors'}")
+
+
+def _train_correctives(args) -> None:
+    """`lrr train correctives`: the corrective fields (no corpus needed: the preset's persons are regenerated)."""
+    from latent_model.config import data_root, preset
+    from latent_model.train.corrective_fields import corrective_training, run_correctives
+
+    if args.set:
+        raise UserError("lrr train correctives takes no --set (its settings are the preset's)")
+    p = preset(args.preset)
+    run_dir = Path(args.run_dir) if args.run_dir else data_root() / "runs" / args.preset
+    run_dir.mkdir(parents=True, exist_ok=True)
+    out = run_dir / "correctives.safetensors"
+    print(f"building the corrective fields (skinning -> skinning+blendshape) of preset {args.preset}; -> {out}")
+    t = time.perf_counter()
+    run_correctives(p, corrective_training(args.preset), out, workers=args.workers,
+                    log=print if not args.quiet else (lambda _m: None))
     print(f"done in {time.perf_counter() - t:.1f} s; {out} is read beside {run_dir / 'model.safetensors'}")
 
 
@@ -400,9 +418,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_sheet)
 
     t = sub.add_parser("train", help="train Phase A (SDF-VAE), Phase B (vertex decoder) or both; resumes")
-    t.add_argument("phase", choices=("phase-a", "phase-b", "all", "motion", "detail"),
+    t.add_argument("phase", choices=("phase-a", "phase-b", "all", "motion", "detail", "correctives"),
                    help="motion: decoder v2 alone, on the run's finished Phase B (phase_b.safetensors); detail: the "
-                        "local detail stage (faces, fingers) -> RUN_DIR/detail.safetensors, no corpus needed")
+                        "local detail stage (faces, fingers) -> RUN_DIR/detail.safetensors; correctives: the corrective "
+                        "fields -> RUN_DIR/correctives.safetensors; neither needs a corpus")
     t.add_argument("--preset", required=True, choices=PRESETS)
     t.add_argument("--corpus", help="corpus directory (default: the preset's)")
     t.add_argument("--run-dir", help="run directory for checkpoints, logs, loss curves (default: $LRR_DATA/runs/PRESET)")
@@ -410,7 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--set", action="append", metavar="SECTION.FIELD=VALUE",
                    help="override one preset field for this run (repeatable; stored in the checkpoint), "
                         "e.g. --set train.a_steps=3000 --set loss.mirror=0")
-    t.add_argument("--workers", type=int, default=2, help="detail: processes posing and sampling the characters")
+    t.add_argument("--workers", type=int, default=2, help="detail, correctives: processes posing (and sampling) the characters")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.set_defaults(func=cmd_train)
 

@@ -81,21 +81,9 @@ class LocalDetailModel:
 
     @staticmethod
     def load(path: str | Path) -> "LocalDetailModel":
-        from safetensors import SafetensorError, safe_open
+        from latent_model.checkpoint import read_stage_file
 
-        from latent_model.checkpoint import CheckpointError
-
-        path = Path(path)
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                meta = dict(f.metadata() or {})
-                if meta.get("format") != FORMAT:
-                    raise CheckpointError(f"{path} is not a local detail file of this version ({FORMAT}); "
-                                          "re-create it with `lrr train detail`")
-                tensors = {k: f.get_tensor(k) for k in f.keys()}
-        except (SafetensorError, OSError) as e:
-            raise CheckpointError(f"local detail file {path} is unreadable ({e}); re-create it with "
-                                  "`lrr train detail`") from e
+        meta, tensors = read_stage_file(path, FORMAT, "local detail", "lrr train detail")
         net = LocalDetail(LocalDetailConfig.from_dict(json.loads(meta["config"])))
         net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
         deltas = {}

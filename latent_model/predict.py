@@ -82,10 +82,18 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: Strategy = "mean
     return _with_novelty(transfer, result, prepared), prepared, time.perf_counter() - t0
 
 
+PREDICTOR_NAMES = {"motion": "motion decoder", "pose_fields": "pose fields", "network": "vertex decoder network",
+                   "correctives": "corrective fields"}
+
+
 def _with_novelty(transfer, result: "TransferOutput", prepared: "PreparedMesh") -> "TransferOutput":
-    """The result with the mesh's novelty filled in when the bank can judge it (encoding the mesh if needed)."""
+    """The result with the mesh's novelty filled in when the bank can judge it (encoding the mesh if needed). Not for
+    the corrective fields unless they read the latent (the nearest identity): they read the mesh's region shape, and
+    the threshold, calibrated on neutral validation characters, would call every posed source novel."""
     from dataclasses import replace
 
+    if result.predictor == "correctives" and "mu" not in prepared.derived():
+        return result
     if result.novelty is None and transfer.bank.ood_threshold > 0:
         return replace(result, novelty=transfer.novelty(prepared))
     return result
@@ -144,7 +152,11 @@ def _print_result(result: "TransferOutput", novelty: dict) -> None:
     for name, n in novelty.items():
         if n is not None and (w := n.warning(name)):
             print(w)
-    if result.gate == 0.0 and result.detail:
+    if result.note:
+        print(f"note: {result.note}")
+    if result.predictor == "correctives":
+        pass  # the corrective fields read no latent delta: no noise gate
+    elif result.gate == 0.0 and result.detail:
         print("body motion: none; the local detail stage alone moves this pose")
     elif result.gate < 1.0:
         print(f"noise gate {result.gate:.2f}: the conditioning delta is {result.signal:.1f}x its sampling noise "
@@ -177,7 +189,7 @@ def run_cli(args) -> None:
           f"displacement mean {disp.mean():.1f} mm, max {disp.max():.1f} mm")
     _print_result(result, {mesh.name: result.novelty})
     used = "its latent encoded" if "mu" in prepared.derived() else "no latent needed"
-    print(f"predicted by the {result.predictor.replace('_', ' ')} ({used}); "
+    print(f"predicted by the {PREDICTOR_NAMES.get(result.predictor, result.predictor)} ({used}); "
           f"wrote {out} (import {t_load:.2f} s, predict {t_pred:.2f} s)")
 
 
@@ -205,4 +217,4 @@ def run_transfer_cli(args) -> None:
     print(f"{mesh.summary()}")
     print(f"magnitude {args.magnitude:g}: displacement mean {disp.mean():.1f} mm, max {disp.max():.1f} mm")
     _print_result(result, novelty)
-    print(f"predicted by the {result.predictor.replace('_', ' ')}; wrote {out} ({seconds:.2f} s)")
+    print(f"predicted by the {PREDICTOR_NAMES.get(result.predictor, result.predictor)}; wrote {out} ({seconds:.2f} s)")

@@ -36,6 +36,7 @@ from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check
                                  parse_strategy)
 
 if TYPE_CHECKING:
+    from latent_model.corrective_fields import CorrectiveFields
     from latent_model.detail import LocalDetailModel
 
 __all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
@@ -44,6 +45,7 @@ __all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "Transfe
 # predicted displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
 GATE_LO = 1.5
 GATE_HI = 3.0
+CORRECTIVE_KIND = "skinning_to_skinning_plus_blendshape"
 
 
 def smooth_gate(signal: float) -> float:
@@ -115,6 +117,7 @@ class TransferOutput:
     detail: dict[str, float] = field(default_factory=dict)  # the local detail stage's gate per region it moved
     # {region: {pose: weight}}: the training poses each region's delta read as (slider weights and magnitude in)
     detail_mix: dict[str, dict[str, float]] = field(default_factory=dict)
+    note: str | None = None  # something the user should know about this prediction (a stage that could not run)
 
 
 @dataclass(frozen=True)
@@ -140,25 +143,30 @@ class Novelty:
 
 class Transfer:
     def __init__(self, model, bank: LatentBank, sdf_k: int, device: torch.device | None = None,
-                 detail: "LocalDetailModel | None" = None) -> None:
+                 detail: "LocalDetailModel | None" = None, correctives: "CorrectiveFields | None" = None) -> None:
         self.model = model.eval()
         self.bank = bank
         self.sdf_k = sdf_k
         self.device = device or torch.device("cpu")
         self.model.to(self.device)
         self.detail = detail  # the local detail stage (faces, fingers), when the model has one
+        self.correctives = correctives  # the corrective fields (skinning -> skinning+blendshape), when it has them
 
     @classmethod
     def from_files(cls, checkpoint: str | Path, bank: str | Path, device: torch.device | None = None,
-                   detail: str | Path | None = "beside") -> "Transfer":
-        """`detail`: a local detail file, "beside" (the checkpoint's `detail.safetensors` if there is one) or None."""
+                   detail: str | Path | None = "beside", correctives: str | Path | None = "beside") -> "Transfer":
+        """`detail`: a local detail file, "beside" (the checkpoint's `detail.safetensors` if there is one) or None;
+        `correctives` the same for the corrective fields (`correctives.safetensors`)."""
         from latent_model.checkpoint import load_checkpoint
+        from latent_model.corrective_fields import CorrectiveFields, correctives_beside
         from latent_model.detail import LocalDetailModel, detail_beside
 
         model, preset, _ = load_checkpoint(checkpoint)
         path = detail_beside(checkpoint) if detail == "beside" else detail
+        fields = correctives_beside(checkpoint) if correctives == "beside" else correctives
         return cls(model, LatentBank.load(bank), preset.corpus.sdf.k, device,
-                   None if path is None else LocalDetailModel.load(path))
+                   None if path is None else LocalDetailModel.load(path),
+                   None if fields is None else CorrectiveFields.load(fields))
 
     # ------------------------------------------------------------------ per mesh
     @torch.no_grad()
@@ -252,8 +260,11 @@ class Transfer:
         return len(self.bank.delta(kind, pose)[0])
 
     def predicts_with(self, kind: PairKind) -> Predictor:
-        """"motion", "pose_fields" or "network": what predicts this pair kind."""
+        """"correctives", "motion", "pose_fields" or "network": what predicts this pair kind (from a pose; an
+        example pair's corrective goes to the network: the fields are read by pose)."""
         check_pair_kind(kind)
+        if self.correctives is not None and kind == CORRECTIVE_KIND:
+            return "correctives"
         if self.model.motion_decoder is not None and kind in self.model.cfg.motion.kinds:
             return "motion"
         return "pose_fields" if self.model.pose_fields.predicts_alone(kind) else "network"
@@ -280,6 +291,8 @@ class Transfer:
         With a local detail stage, `neutral_to_pose` adds what a face or finger pose does inside the head and
         hands (`_add_detail`)."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
+        if delta is None and self.predicts_with(kind) == "correctives":
+            return self._corrective_prediction(mesh, pose, strategy, magnitude, pose_b, blend)
         if delta is not None:
             d, label = np.asarray(delta, np.float32), "example"
         elif pose is None:
@@ -290,6 +303,8 @@ class Transfer:
         d_b = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)[0] if pose_b is not None and blend > 0 else None
         n_b = self.averaged(pose_b, strategy, kind) if d_b is not None else 1
         predictor = self.predicts_with(kind)
+        if predictor == "correctives":  # an example pair's corrective: the fields are read by pose
+            predictor = "network"
         body = (not self._local_only(None if delta is not None else pose, kind),
                 not self._local_only(pose_b if d_b is not None else None, kind))
         if predictor == "motion":
@@ -317,6 +332,36 @@ class Transfer:
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix)
+
+    def _corrective_prediction(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy, magnitude: float,
+                               pose_b: str | None, blend: float) -> TransferOutput:
+        """The corrective of a skinned mesh: source + magnitude × the slider mix of each pose's corrective fields (a
+        combo: the sum of its components', as the rig adds them), read from the mesh's own region shape. The fields
+        read no latent delta, so there is no noise gate (gate 1) and the oracle is the mean; the nearest-identity
+        strategy reads the nearest training identity's own samples (its rests)."""
+        if pose is None:
+            raise ValueError("predict needs a pose (or an example pair's delta)")
+        s = parse_strategy(strategy)
+        person, label = None, "mean" if s != "oracle" else "oracle"
+        if s == "nearest_identity_delta":
+            label = self.bank.nearest_identity(CORRECTIVE_KIND, pose, mesh.mu)[0]
+            person = label.split("@")[0]
+        elif s.startswith("identity:"):
+            label = s.split(":", 1)[1]
+            person = label.split("@")[0]
+        fields = self.correctives
+        note = fields.available(mesh.vertices, mesh.faces)
+        v = mesh.vertices.astype(np.float64)
+        out = np.zeros_like(v)
+        weights = [(pose, 1.0 - blend if pose_b is not None else 1.0)] + ([(pose_b, blend)] if pose_b is not None else [])
+        moved = False
+        for name, w in weights:
+            parts = [c for c in (get_pose(name).components or (name,)) if fields.has(c)]
+            for c in parts if note is None and w * magnitude != 0 else ():
+                out += w * magnitude * fields.displacement(v, c, person)
+                moved = True
+        pred = (v + out).astype(np.float32)
+        return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), label, "correctives", note=note)
 
     def _local_only(self, pose: str | None, kind: PairKind) -> bool:
         """Whether the local detail stage moves this pose entirely (every part a face or finger pose it holds): the

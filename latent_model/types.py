@@ -33,6 +33,7 @@ BaseStrategy = Literal[
 # A strategy is a BaseStrategy or "identity:<id>" (a chosen training identity's delta).
 Strategy = str
 Predictor = Literal[
+    "correctives",  # the corrective fields (corrective_fields.py): skinning -> skinning+blendshape
     "pose_fields",  # the closed-form pose fields alone (nn/pose_fields.py)
     "network",  # the vertex decoder network (nn/vertex_decoder.py), which reads the fields too
     "motion",  # the motion decoder (nn/motion_decoder.py): a per-vertex rigid motion in the limb's frame

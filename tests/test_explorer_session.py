@@ -187,7 +187,7 @@ def test_compute_derives_the_pair_once(monkeypatch):
     class Out:
         def __init__(self, v):
             self.vertices, self.gate, self.signal, self.label, self.novelty, self.detail = v, 1.0, 9.0, "mean", None, {}
-            self.detail_mix = {}
+            self.detail_mix, self.predictor, self.note = {}, "motion", None
 
     class Transfer:
         class bank:

@@ -47,8 +47,11 @@ def add_arguments(p) -> None:
     p.add_argument("--workers", type=int, default=None,
                    help="processes sharing the mesh transfer's characters (default: up to 2, one per core)")
     p.add_argument("--detail", help="local detail file (default: detail.safetensors beside the checkpoint, if any)")
+    p.add_argument("--correctives", help="corrective fields file (default: correctives.safetensors beside the "
+                                         "checkpoint, if any)")
     p.add_argument("--detail-only", action="store_true",
-                   help="only the local detail section (faces, fingers; no corpus needed) -> OUT/detail.md, detail.json")
+                   help="only the local detail section (faces, fingers, correctives; no corpus needed) -> OUT/detail.md, "
+                        "detail.json")
     p.add_argument("--split", choices=("test", "val"), default="test",
                    help="--detail-only: the held-out characters to measure (val to choose settings, test once)")
     p.add_argument("--quiet", action="store_true")
@@ -63,13 +66,15 @@ def run_cli(args) -> None:
     t = time.perf_counter()
     if args.detail_only:
         out = evaluate_detail_only(ckpt, bank, Path(args.detail) if args.detail else None, args.split, Path(args.out),
-                                   args.transfer_ids, progress=not args.quiet)
+                                   args.transfer_ids, progress=not args.quiet,
+                                   correctives=Path(args.correctives) if args.correctives else None)
         print(f"local detail report written to {out} in {time.perf_counter() - t:.0f} s")
         return
     out = evaluate(ckpt, bank, Path(args.corpus) if args.corpus else None, Path(args.out),
                    transfer_ids=args.transfer_ids, progress=not args.quiet,
                    baseline_cache=None if args.fresh_baselines else data_root() / "cache" / "baselines",
-                   workers=args.workers, detail=Path(args.detail) if args.detail else None)
+                   workers=args.workers, detail=Path(args.detail) if args.detail else None,
+                   correctives=Path(args.correctives) if args.correctives else None)
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
 
 
@@ -83,38 +88,55 @@ def detail_characters(preset, split: str, n: int = 0) -> list:
     return [s for r in rests for s in [x for x in held if x.rest == r][:n or None]]
 
 
-def _detail_transfer(checkpoint: Path, bank: Path, detail: Path | None):
-    """(Transfer with the local detail stage, the checkpoint's preset)."""
+def _detail_transfer(checkpoint: Path, bank: Path, detail: Path | None, correctives: Path | None = None):
+    """(Transfer with the local detail stage and the corrective fields (each: the file given, else beside the
+    checkpoint, else none; one of them at least), the checkpoint's preset)."""
     from latent_model.bank import LatentBank
     from latent_model.checkpoint import load_checkpoint
+    from latent_model.corrective_fields import CorrectiveFields, correctives_beside
     from latent_model.detail import LocalDetailModel, detail_beside
     from latent_model.transfer import Transfer
 
     path = detail or detail_beside(checkpoint)
-    if path is None:
-        raise ValueError(f"no local detail file: give --detail or put detail.safetensors beside {checkpoint} "
-                         "(`lrr train detail`)")
+    fields = correctives or correctives_beside(checkpoint)
+    if path is None and fields is None:
+        raise ValueError(f"no local detail or corrective fields file: give --detail / --correctives or put "
+                         f"detail.safetensors / correctives.safetensors beside {checkpoint} (`lrr train detail`, "
+                         "`lrr train correctives`)")
     model, preset, _ = load_checkpoint(checkpoint)
-    return Transfer(model.eval(), LatentBank.load(bank), preset.corpus.sdf.k, None, LocalDetailModel.load(path)), preset
+    return Transfer(model.eval(), LatentBank.load(bank), preset.corpus.sdf.k, None,
+                    None if path is None else LocalDetailModel.load(path),
+                    None if fields is None else CorrectiveFields.load(fields)), preset
 
 
 def evaluate_detail_only(checkpoint: Path, bank: Path, detail: Path | None, split: str, out: Path, per_rest: int = 0,
-                         progress: bool = True) -> Path:
-    """`lrr evaluate --detail-only`: the local detail section on the `split` characters -> out/detail.md, detail.json."""
+                         progress: bool = True, correctives: Path | None = None) -> Path:
+    """`lrr evaluate --detail-only`: the local detail section (faces, fingers, correctives) on the `split`
+    characters -> out/detail.md, detail.json."""
+    from latent_model.analysis import corrective_eval
     from latent_model.analysis.detail_eval import evaluate_detail, markdown
     from latent_model.atomic import atomic_write_json, atomic_write_text
 
-    transfer, preset = _detail_transfer(checkpoint, bank, detail)
+    say = print if progress else (lambda _m: None)
+    transfer, preset = _detail_transfer(checkpoint, bank, detail, correctives)
     specs = detail_characters(preset, split, per_rest)
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=print if progress else (lambda _m: None))
+    m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=say)
     m["timing.detail_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    m.update(corrective_eval.evaluate_correctives(transfer, specs, say=say))
+    m["timing.correctives_s"] = time.perf_counter() - t
     m["meta.detail_characters"] = [s.id for s in specs]
     atomic_write_json(out / "detail.json", m)
-    text = f"# Local detail ({split} characters: {', '.join(s.id for s in specs)})\n\n" + markdown(m) + "\n"
+    text = f"# Local detail ({split} characters: {', '.join(s.id for s in specs)})\n\n"
+    if transfer.detail is not None:
+        text += markdown(m) + "\n"
     if fig:
         text += f"\n![{fig['title']}]({_detail_figure(fig, out).name})\n"
+    if transfer.correctives is not None:
+        text += "\n## Corrective pairs (skinning → skinning+blendshape): explained (worst character)\n\n"
+        text += corrective_eval.markdown(m) + "\n"
     atomic_write_text(out / "detail.md", text)
     return out
 
@@ -203,11 +225,12 @@ def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, d
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
              progress: bool = True, baseline_cache: Path | None = None, workers: int | None = None,
-             detail: Path | None = None) -> Path:
+             detail: Path | None = None, correctives: Path | None = None) -> Path:
     """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
     keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time).
     `workers`: processes sharing the mesh transfer's characters (None: one per core, at most 2). `detail`: the
-    local detail file (None: the checkpoint's `detail.safetensors` if there is one), in every prediction."""
+    local detail file (None: the checkpoint's `detail.safetensors` if there is one), in every prediction;
+    `correctives` the same for the corrective fields."""
     from latent_model.analysis import figures
 
     if workers is not None and workers < 1:
@@ -256,16 +279,20 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
 
     say("mesh transfer on held-out identities")
     t = time.perf_counter()
+    from latent_model.corrective_fields import CorrectiveFields, correctives_beside
     from latent_model.detail import LocalDetailModel, detail_beside
 
     detail = detail or detail_beside(checkpoint)
-    transfer = Transfer(model, bank, preset.corpus.sdf.k, None, None if detail is None else LocalDetailModel.load(detail))
+    correctives = correctives or correctives_beside(checkpoint)
+    transfer = Transfer(model, bank, preset.corpus.sdf.k, None, None if detail is None else LocalDetailModel.load(detail),
+                        None if correctives is None else CorrectiveFields.load(correctives))
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
     workers = min(2, os.cpu_count() or 1, len(ids)) if workers is None else workers
     tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress, workers=workers)
-    names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields"}
+    names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields",
+             "correctives": "corrective fields"}
     tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
     timings["transfer_s"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -282,6 +309,13 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
         tm.update(dm)
         tm["meta.detail_characters"] = [s.id for s in held]
         timings["detail_s"] = time.perf_counter() - t
+    if transfer.correctives is not None:
+        from latent_model.analysis.corrective_eval import evaluate_correctives
+
+        say("corrective fields on the held-out characters, every rest")
+        t = time.perf_counter()
+        tm.update(evaluate_correctives(transfer, detail_characters(preset, "test", DETAIL_PER_REST), say=say))
+        timings["correctives_s"] = time.perf_counter() - t
 
     say("figures")
     t = time.perf_counter()
@@ -473,6 +507,11 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
     out += ["### Corrective pairs (skinning → skinning+blendshape), err mm", "",
             _table(["pose", "no motion", "mean", "nearest", "oracle", "mean raw", "nearest raw", "offset nearest",
                     "gate mean", "gate nearest", "better of mean/nearest not worse than no motion", "raw: not worse"], rows), ""]
+    if any(k.startswith("correctives.") for k in m):
+        from latent_model.analysis.corrective_eval import markdown as corrective_markdown
+
+        out += ["### Corrective fields on held-out characters in every rest: explained (worst character)", "",
+                corrective_markdown(m), ""]
     out += _decoder_section(m, singles)
     if any(k.startswith("detail.") for k in m):
         from latent_model.analysis.detail_eval import markdown as detail_markdown

@@ -1,0 +1,87 @@
+"""The corrective fields on held-out characters: issue 19's corrective target, measured without a corpus.
+
+Each held-out character is regenerated in its own rest configuration and posed in every corrective pose; the
+skinned mesh goes through the Transfer API (`skinning_to_skinning_plus_blendshape`, the mean and the nearest
+identity's strategies) and the prediction is compared with the rig's skinning + blendshape: explained motion
+(1 - err / the no-motion error: > 0 is better than no motion), error and static leakage over the whole mesh.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+
+from latent_model.analysis.metrics import mesh_errors
+from latent_model.corpus.identities import IdentitySpec
+
+KIND = "skinning_to_skinning_plus_blendshape"
+STRATEGIES = (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest"))
+TARGET_JOINTS = ("elbow", "knee", "shoulder")  # the issue's target: explained >= 0.3 on these, never below 0
+
+
+def evaluate_correctives(transfer, specs: list[IdentitySpec], say: Callable[[str], None] = print) -> dict:
+    """Metrics `correctives.*` of `transfer`'s corrective fields on the characters `specs` (held out); {} without."""
+    from latent_model.corpus.build import generator, init_generator_worker
+    from latent_model.corpus.sdf import body_component_faces
+
+    if transfer.correctives is None:
+        return {}
+    init_generator_worker()
+    gen = generator()
+    faces = np.asarray(gen.faces, np.int64)
+    rows: dict[tuple[str, str, str], list] = {}
+    t0 = time.time()
+    for n, spec in enumerate(specs):
+        for pose in transfer.correctives.poses:
+            g = gen.pose(spec, pose)
+            skinned, truth = g.skinning.astype(np.float64), g.skinning_plus_blendshape.astype(np.float64)
+            mesh = transfer.prepare(skinned, faces, body_component_faces(skinned, faces))
+            for strategy, name in STRATEGIES:
+                pred = transfer.predict(mesh, pose, strategy, kind=KIND).astype(np.float64)
+                rows.setdefault((pose, name, spec.rest), []).append(mesh_errors(pred, truth, skinned))
+            rows.setdefault((pose, "no_motion", spec.rest), []).append(mesh_errors(skinned, truth, skinned))
+        say(f"  correctives: {n + 1}/{len(specs)} characters ({time.time() - t0:.0f} s)")
+    return summarise(rows)
+
+
+def summarise(rows: dict) -> dict:
+    """{(pose, strategy, rest): [mesh_errors]} -> flat metrics: per pose, strategy and rest (means), the worst
+    character, and per strategy and rest the mean over the target joints' poses."""
+    m: dict = {}
+    for (pose, name, rest), r in rows.items():
+        for k in ("explained", "err_mm", "leak_mm"):
+            m[f"correctives.{pose}.{name}.{rest}.{k}"] = float(np.mean([x[k] for x in r]))
+        m[f"correctives.{pose}.{name}.{rest}.worst_explained"] = float(np.min([x["explained"] for x in r]))
+    rests = sorted({r for _, _, r in rows}, key=lambda r: (r != "bind", r))
+    poses = sorted({p for p, _, _ in rows})
+    targets = [p for p in poses if p.startswith(TARGET_JOINTS)]
+    for _, name in STRATEGIES:
+        for rest in rests:
+            vals = [m[f"correctives.{p}.{name}.{rest}.explained"] for p in targets if f"correctives.{p}.{name}.{rest}.explained" in m]
+            if vals:
+                m[f"correctives.targets.{name}.{rest}.explained"] = float(np.mean(vals))
+                m[f"correctives.targets.{name}.{rest}.min_pose_explained"] = float(np.min(vals))
+    return m
+
+
+def markdown(m: dict) -> str:
+    """Per pose: explained (mean over characters, the worst in brackets) for the mean and nearest strategies in each
+    rest; then the target joints' means."""
+    poses = sorted({k.split(".")[1] for k in m if k.startswith("correctives.") and not k.startswith("correctives.targets.")})
+    if not poses:
+        return "(no corrective fields beside the checkpoint)"
+    rests = sorted({k.split(".")[3] for k in m if k.startswith(f"correctives.{poses[0]}.mean.")},
+                   key=lambda r: (r != "bind", r))
+    head = ["pose"] + [f"{s} {r}" for _, s in STRATEGIES for r in rests]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for p in poses:
+        cells = [f"{m[f'correctives.{p}.{s}.{r}.explained']:.2f} ({m[f'correctives.{p}.{s}.{r}.worst_explained']:.2f})"
+                 if f"correctives.{p}.{s}.{r}.explained" in m else "" for _, s in STRATEGIES for r in rests]
+        out.append(f"| {p} | " + " | ".join(cells) + " |")
+    out += ["", "| joints " + ", ".join(TARGET_JOINTS) + " | " + " | ".join(rests) + " |", "|---|" + "---|" * len(rests)]
+    for _, s in STRATEGIES:
+        out.append(f"| {s}: mean explained (lowest pose) | " + " | ".join(
+            f"{m[f'correctives.targets.{s}.{r}.explained']:.2f} ({m[f'correctives.targets.{s}.{r}.min_pose_explained']:.2f})"
+            if f"correctives.targets.{s}.{r}.explained" in m else "" for r in rests) + " |")
+    return "\n".join(out)

@@ -1,0 +1,157 @@
+"""Corrective shapes: what a production rig adds on top of skinning at a bent elbow, knee or shoulder.
+
+The `skinning_to_skinning_plus_blendshape` pair moves a skinned pose to the rig's final shape: a biceps bulge,
+an elbow or knee crease, deltoid bunching (corpus/correctives.py), millimetres that the global latent cannot
+see (their deltas sit at its noise floor; the vertex decoder's reading of them was worse than no motion on 9
+of 12 poses). A corrective depends on the character's build and on how the limb sits (its rest pose plus the
+pose), so each pose's fields are pooled over training characters in every training rest configuration: a
+sample is its skinned region, aligned by a similarity to the anchor's (the first sample's), and its corrective
+in that frame. A target reads the mean corrective of the `k` samples whose aligned region shapes lie nearest
+to its own (validation, elbowBentLf: 0.70 of the motion explained in bind and 0.50 in the validation rests;
+the bind samples' mean alone: 0.06 in those rests).
+
+Correspondence is by vertex index on anny's topology (every corpus character's): a mesh of another topology
+gets no corrective and is told so (`CorrectiveFields.available`).
+
+Files: `correctives.safetensors` beside a checkpoint (`lrr train correctives`): per pose its region's vertex
+indices, anchor, landmark subset, the samples' landmark shapes, persons, and the correctives' PCA (mean,
+basis, coefficients).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from latent_model.atomic import atomic_write
+
+FORMAT = "lrr-correctives-1"
+NEAREST = 8  # samples a target reads (validation: 8 over 4 and 16)
+NEAREST_OWN = 2  # of one training person's samples (its rests), for the nearest-identity strategy
+
+
+def similarity(x: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R (3, 3), t (3,)) with y ≈ s x R^T + t in the least-squares sense (Umeyama): x, y (N, 3) paired."""
+    mx, my = x.mean(0), y.mean(0)
+    u, sv, vt = np.linalg.svd((y - my).T @ (x - mx))
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    r = u @ d @ vt
+    s = float((sv * np.diag(d)).sum() / max(((x - mx) ** 2).sum(), 1e-18))
+    return s, r, my - s * r @ mx
+
+
+@dataclass
+class PoseCorrective:
+    """One pose's corrective fields on its region of anny's topology.
+
+    index (N,) region vertices; anchor (N, 3) the anchor sample's skinned region; landmarks (L,) positions in the
+    region whose aligned shape describes a sample; shapes (S, L*3) each sample's aligned landmarks; persons (S,)
+    whose sample; mean (N*3,), basis (C, N*3), coef (S, C): the samples' correctives in the anchor frame, PCA."""
+
+    index: np.ndarray
+    anchor: np.ndarray
+    landmarks: np.ndarray
+    shapes: np.ndarray
+    persons: list[str]
+    mean: np.ndarray
+    basis: np.ndarray
+    coef: np.ndarray
+
+    def frame(self, vertices: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(s, R, t, shape (L*3,)) of a skinned mesh's region: its similarity from the anchor and aligned landmarks."""
+        x = np.asarray(vertices, np.float64)[self.index]
+        s, r, t = similarity(self.anchor.astype(np.float64), x)
+        aligned = (x[self.landmarks] - t) @ r / s
+        return s, r, t, aligned.ravel()
+
+    def nearest(self, shape: np.ndarray, k: int, person: str | None = None) -> np.ndarray:
+        """Indices of the k samples (of `person` only, when it has samples) whose shapes are nearest to `shape`."""
+        pool = np.arange(len(self.shapes))
+        if person is not None and person in self.persons:
+            pool = np.flatnonzero(np.asarray(self.persons) == person)
+        d = np.linalg.norm(self.shapes[pool].astype(np.float64) - shape, axis=1)
+        return pool[np.argsort(d)[:k]]
+
+    def displacement(self, vertices: np.ndarray, person: str | None = None) -> np.ndarray:
+        """(V, 3) corrective of a skinned mesh (anny's topology, (V, 3)): the mean corrective of its nearest samples
+        (all, or `person`'s when the fields hold that person), carried from the anchor frame to the mesh's region."""
+        s, r, _, shape = self.frame(vertices)
+        own = person is not None and person in self.persons
+        near = self.nearest(shape, NEAREST_OWN if own else NEAREST, person if own else None)
+        field = (self.mean.astype(np.float64) + self.coef[near].astype(np.float64).mean(0) @ self.basis.astype(np.float64))
+        out = np.zeros((len(vertices), 3))
+        out[self.index] = s * field.reshape(-1, 3) @ r.T
+        return out
+
+
+class CorrectiveFields:
+    """The corrective fields of the poses the rig corrects ({pose: PoseCorrective}) on anny's topology
+    (`n_vertices`)."""
+
+    def __init__(self, poses: dict[str, PoseCorrective], n_vertices: int, faces_digest: str,
+                 validation: dict[str, dict[str, float]] | None = None) -> None:
+        self.poses = poses
+        self.n_vertices = n_vertices
+        self.faces_digest = faces_digest  # `faces_digest(anny's triangles)`: the topology the indices belong to
+        # {pose: {rest: explained}} on the validation characters when built, the poses not kept included
+        self.validation = validation or {}
+
+    def has(self, pose: str | None) -> bool:
+        return pose is not None and pose in self.poses
+
+    def available(self, vertices: np.ndarray, faces: np.ndarray) -> str | None:
+        """None when a mesh can take correctives (anny's topology: its vertex count and triangles), else why not,
+        for the user."""
+        if len(vertices) != self.n_vertices or faces_digest(faces) != self.faces_digest:
+            return (f"no corrective: the corrective fields follow anny's topology ({self.n_vertices} vertices) by vertex "
+                    f"index, and this mesh has " + (f"{len(vertices)} vertices" if len(vertices) != self.n_vertices
+                                                    else "other triangles"))
+        return None
+
+    def displacement(self, vertices: np.ndarray, pose: str, person: str | None = None) -> np.ndarray:
+        """(V, 3) the pose's corrective on a skinned mesh (`PoseCorrective.displacement`)."""
+        return self.poses[pose].displacement(vertices, person)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: Path) -> None:
+        from safetensors.torch import save_file
+
+        tensors = {}
+        for p, c in self.poses.items():
+            tensors[f"{p}.index"] = torch.from_numpy(np.ascontiguousarray(c.index, np.int32))
+            tensors[f"{p}.landmarks"] = torch.from_numpy(np.ascontiguousarray(c.landmarks, np.int32))
+            tensors[f"{p}.anchor"] = torch.from_numpy(np.ascontiguousarray(c.anchor, np.float32))
+            for name in ("shapes", "mean", "basis", "coef"):  # half precision: a tenth of a millimetre of a field
+                tensors[f"{p}.{name}"] = torch.from_numpy(np.ascontiguousarray(getattr(c, name), np.float16))
+        meta = {"format": FORMAT, "n_vertices": str(self.n_vertices), "faces": self.faces_digest,
+                "validation": json.dumps(self.validation),
+                "persons": json.dumps({p: c.persons for p, c in self.poses.items()})}
+        atomic_write(Path(path), lambda tmp: save_file(tensors, str(tmp), metadata=meta))
+
+    @staticmethod
+    def load(path: str | Path) -> "CorrectiveFields":
+        from latent_model.checkpoint import read_stage_file
+
+        meta, tensors = read_stage_file(path, FORMAT, "corrective fields", "lrr train correctives")
+        t = {k: v.numpy() for k, v in tensors.items()}
+        persons = json.loads(meta["persons"])
+        poses = {p: PoseCorrective(t[f"{p}.index"].astype(np.int64), t[f"{p}.anchor"], t[f"{p}.landmarks"].astype(np.int64),
+                                   t[f"{p}.shapes"], who, t[f"{p}.mean"], t[f"{p}.basis"], t[f"{p}.coef"])
+                 for p, who in persons.items()}
+        return CorrectiveFields(poses, int(meta["n_vertices"]), meta["faces"], json.loads(meta.get("validation", "{}")))
+
+
+def faces_digest(faces: np.ndarray) -> str:
+    """A short fingerprint of a triangle list (the topology a vertex index means something in)."""
+    import hashlib
+
+    return hashlib.sha1(np.ascontiguousarray(faces, np.int64).tobytes()).hexdigest()[:16]
+
+
+def correctives_beside(checkpoint: str | Path) -> Path | None:
+    """The corrective fields file next to a checkpoint, if there is one."""
+    p = Path(checkpoint).parent / "correctives.safetensors"
+    return p if p.exists() else None

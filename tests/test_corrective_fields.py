@@ -1,0 +1,145 @@
+"""The corrective fields (latent_model/corrective_fields.py, train/corrective_fields.py): `lrr train correctives` on
+the tiny preset, its file, and what `Transfer` does with a skinning -> skinning+blendshape pair: the corrective of
+the pose, read from the mesh's own region shape, better than no motion on a held-out character, linear in the
+magnitude; another topology gets none and is told why."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+KIND = "skinning_to_skinning_plus_blendshape"
+
+
+@pytest.fixture(scope="module")
+def fields(tmp_path_factory):
+    from latent_model.config import preset
+    from latent_model.corrective_fields import CorrectiveFields
+    from latent_model.train.corrective_fields import corrective_training, run_correctives
+
+    path = tmp_path_factory.mktemp("correctives") / "correctives.safetensors"
+    run_correctives(preset("tiny"), corrective_training("tiny"), path, workers=1, log=lambda _m: None)
+    return path, CorrectiveFields.load(path)
+
+
+@pytest.fixture(scope="module")
+def with_fields(tiny_motion, fields):
+    transfer, _ = tiny_motion
+    return type(transfer)(transfer.model, transfer.bank, transfer.sdf_k, correctives=fields[1])
+
+
+def _skinned(generator, spec, pose="elbowBentLf", rest=None):
+    g = generator.pose(spec, pose, rest)
+    return g.skinning.astype(np.float64), g.skinning_plus_blendshape.astype(np.float64)
+
+
+def _held_out():
+    from latent_model.config import preset
+    from latent_model.corpus.build import plan
+
+    specs, _, _ = plan(preset("tiny").corpus)
+    return [s for s in specs if s.split == "test"]
+
+
+def test_the_file_holds_each_corrected_pose(fields, tmp_path):
+    from latent_model.checkpoint import CheckpointError
+    from latent_model.corrective_fields import CorrectiveFields
+
+    path, f = fields
+    assert set(f.poses) == {"elbowBentLf", "elbowBentRt", "kneeBentLf"}  # the tiny preset's body poses
+    c = f.poses["elbowBentLf"]
+    assert len(c.persons) == len(c.shapes) == len(c.coef) == 2 * 2  # 2 persons x 2 rests
+    assert set(f.validation) == set(f.poses) and all(set(r) == {"bind", "armsSides"} for r in f.validation.values())
+    assert c.basis.shape == (3, len(c.index) * 3) and np.abs(c.mean).max() > 0
+    again = tmp_path / "again.safetensors"
+    f.save(again)
+    other = CorrectiveFields.load(again)
+    assert np.array_equal(other.poses["kneeBentLf"].index, f.poses["kneeBentLf"].index)
+    assert np.array_equal(other.poses["kneeBentLf"].coef, f.poses["kneeBentLf"].coef)
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"not a file")
+    with pytest.raises(CheckpointError, match="lrr train correctives"):
+        CorrectiveFields.load(bad)
+
+
+def test_the_elbow_region_is_at_the_left_elbow(fields, generator):
+    f = fields[1]
+    spec = _held_out()[0]
+    skinned, truth = _skinned(generator, spec)
+    moved = np.linalg.norm(truth - skinned, axis=1)
+    region = f.poses["elbowBentLf"].index
+    # the region holds where the rig's corrective is: 95 % of it (by size), and is a small part of the body
+    assert moved[region].sum() / moved.sum() > 0.95 and len(region) < 0.15 * len(skinned)
+    x = skinned[region, 0]
+    assert np.sign(np.median(x)) == np.sign(np.median(skinned[np.argmax(moved), 0]))  # the same side
+
+
+def test_a_held_out_corrective_beats_no_motion_and_scales(with_fields, generator, tiny_corpus):
+    from latent_model.analysis.metrics import mesh_errors
+
+    assert with_fields.predicts_with(KIND) == "correctives"
+    for spec in _held_out()[:2]:
+        skinned, truth = _skinned(generator, spec)
+        mesh = with_fields.prepare(skinned, tiny_corpus.faces)
+        out = with_fields.predict_detail(mesh, "elbowBentLf", "mean", kind=KIND)
+        assert out.predictor == "correctives" and out.note is None and out.gate == 1.0
+        assert mesh_errors(out.vertices, truth, skinned)["explained"] > 0.2, spec.id
+        zero = with_fields.predict(mesh, "elbowBentLf", "mean", magnitude=0.0, kind=KIND)
+        assert np.array_equal(zero, mesh.vertices)  # magnitude 0: the source exactly
+        half = with_fields.predict(mesh, "elbowBentLf", "mean", magnitude=0.5, kind=KIND)
+        np.testing.assert_allclose(half - mesh.vertices, 0.5 * (out.vertices - mesh.vertices), atol=1e-6)
+
+
+def test_the_read_follows_the_mesh_shape(fields, generator):
+    """With one sample read, a training person posed on top of a rest reads that person's own sample in that rest:
+    what is read comes from the mesh's region, not from the pose's name alone."""
+    from latent_model.config import preset
+    from latent_model.corpus.build import plan
+
+    c = fields[1].poses["elbowBentLf"]
+    specs, _, _ = plan(preset("tiny").corpus)
+    person = next(s for s in specs if s.id == c.persons[-1])
+    for rest, sample in (("bind", len(c.persons) - 2), ("armsDown", len(c.persons) - 1)):
+        skinned, _ = _skinned(generator, person, rest=rest)
+        assert c.nearest(c.frame(skinned)[3], 1)[0] == sample, rest
+    a = fields[1].displacement(_skinned(generator, person, rest="bind")[0], "elbowBentLf")
+    b = fields[1].displacement(_skinned(generator, person, rest="armsDown")[0], "elbowBentLf")
+    assert np.abs(a - b).max() > 1e-4
+
+
+def test_a_combo_adds_its_components_and_the_blend_mixes(with_fields, generator, tiny_corpus):
+    spec = _held_out()[0]
+    skinned, _ = _skinned(generator, spec, "elbowBentLf+kneeBentLf")
+    mesh = with_fields.prepare(skinned, tiny_corpus.faces)
+    v = mesh.vertices.astype(np.float64)
+    combo = with_fields.predict(mesh, "elbowBentLf+kneeBentLf", "mean", kind=KIND) - v
+    parts = [with_fields.predict(mesh, p, "mean", kind=KIND) - v for p in ("elbowBentLf", "kneeBentLf")]
+    np.testing.assert_allclose(combo, parts[0] + parts[1], atol=1e-5)
+    mixed = with_fields.predict(mesh, "elbowBentLf", "mean", kind=KIND, pose_b="kneeBentLf", blend=0.25) - v
+    np.testing.assert_allclose(mixed, 0.75 * parts[0] + 0.25 * parts[1], atol=1e-5)
+
+
+def test_another_topology_gets_no_corrective_and_is_told(with_fields, generator):
+    import trimesh
+
+    skinned, _ = _skinned(generator, _held_out()[0])
+    m = trimesh.Trimesh(skinned, np.asarray(generator.faces), process=False).subdivide()
+    mesh = with_fields.prepare(m.vertices, m.faces)
+    out = with_fields.predict_detail(mesh, "elbowBentLf", "mean", kind=KIND)
+    assert np.array_equal(out.vertices, mesh.vertices) and out.gate == 0.0
+    assert "anny's topology" in out.note and str(len(m.vertices)) in out.note
+    # the same vertex count with other triangles is another topology too
+    f = np.asarray(generator.faces)[:, [1, 0, 2]]
+    out = with_fields.predict_detail(with_fields.prepare(skinned, f), "elbowBentLf", "mean", kind=KIND)
+    assert np.array_equal(out.vertices, skinned.astype(np.float32)) and "other triangles" in out.note
+
+
+def test_the_evaluation_measures_every_pose_and_rest(with_fields):
+    from latent_model.analysis.corrective_eval import evaluate_correctives, markdown
+
+    specs = [s for s in _held_out() if s.id in ("id002", "id002@tpose")]
+    m = evaluate_correctives(with_fields, specs, say=lambda _m: None)
+    assert m["correctives.elbowBentLf.no_motion.bind.explained"] == 0.0
+    assert m["correctives.elbowBentLf.mean.bind.explained"] > 0.2
+    assert {"correctives.targets.mean.tpose.explained", "correctives.targets.nearest.bind.explained"} <= set(m)
+    text = markdown(m)
+    assert "kneeBentLf" in text and "tpose" in text
