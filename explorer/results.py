@@ -18,8 +18,11 @@ from explorer.selection import Selection
 if TYPE_CHECKING:  # the results only carry a Novelty: importing the Transfer API (torch) is the session's job
     from latent_model.transfer import Novelty
 
-ERROR_RANGE_MM = (0.0, 40.0)  # fixed colour range of per-vertex error (shared by every prediction view)
-DISPLACEMENT_RANGE_MM = (0.0, 80.0)  # fixed colour range of |prediction - source|
+ERROR_RANGE_MM = (0.0, 40.0)  # colour range of per-vertex error for body motion (shared by every prediction view)
+DISPLACEMENT_RANGE_MM = (0.0, 80.0)  # colour range of |prediction - source| for body motion
+# finer ranges for small motion (a face pose, a corrective): the displacement range is the smallest of these holding
+# the motion's 99th percentile, the error range half of it, so a 3 mm crease is not drawn in the colour of 0
+DISPLACEMENT_STEPS_MM = (5.0, 10.0, 20.0, 40.0, 80.0)
 STRATEGY_LABELS = {"mean_pose_delta": "mean pose delta", "nearest_identity_delta": "nearest identity delta"}
 
 
@@ -80,6 +83,8 @@ class Prediction:
     novelty: Novelty | None = None  # how far the target's latent is from training (None: not judged)
     detail: dict[str, float] = field(default_factory=dict)  # the local detail stage's gate per region it moved
     detail_mix: dict[str, dict[str, float]] = field(default_factory=dict)  # {region: {pose: weight}} it read
+    predictor: str = ""  # what the Transfer API predicted with ("correctives", "motion", ...)
+    note: str | None = None  # what the user should know about it (a stage that could not run)
 
     @property
     def is_example(self) -> bool:
@@ -94,7 +99,9 @@ class Prediction:
             cond = f" ({self.label})" if self.strategy != "mean_pose_delta" and not self.strategy.startswith("identity:") else ""
         what, mm = ("error", self.error_mm) if self.error_mm is not None else ("displacement", self.displacement_mm)
         text = f"{name}{cond}\n{what} mean {mm.mean():.1f} mm\n{what} max {mm.max():.1f} mm"
-        if self.gate == 0.0 and self.detail:
+        if self.predictor == "correctives":
+            text += "\ncorrective fields" + ("" if self.gate > 0 else ": none for this pose")
+        elif self.gate == 0.0 and self.detail:
             text += "\nbody: no motion (local detail alone)"
         elif self.gate < 1.0:
             text += f"\n{'body ' if self.detail else ''}noise gate {self.gate:.2f}: delta {self.signal:.1f}x its noise"
@@ -104,6 +111,10 @@ class Prediction:
             text += "\nlocal detail: " + ", ".join(f"{r.replace('_', ' ')}" + (f" gate {g:.2f}" if g < 1.0 else "")
                                                    for r, g in self.detail.items())
             text += "".join(f"\n  {r.replace('_', ' ')} = {describe_mix(m, 2)}" for r, m in self.detail_mix.items() if m)
+        if self.note:
+            import textwrap
+
+            text += "\n" + "\n".join(textwrap.wrap(self.note, 44))
         if self.novelty is not None and self.novelty.out_of_distribution:
             text += f"\nout of distribution: latent {self.novelty.distance:.1f} > {self.novelty.threshold:.1f}"
         return text
@@ -137,6 +148,14 @@ class ViewState:
     def colour(self) -> ColourBy:
         """What colours the prediction: the user's choice, or displacement when there is no truth."""
         return "displacement" if self.truth is None else self.selection.colour
+
+    def colour_range(self, colour: ColourBy) -> tuple[float, float]:
+        """(0, max) mm of the prediction views' colours: from the truth's motion (steady while a slider scrubs), or the
+        prediction's without a truth (`DISPLACEMENT_STEPS_MM`)."""
+        moved = self.truth if self.truth is not None else self.prediction.vertices
+        p99 = float(np.percentile(np.linalg.norm(moved - self.source, axis=1), 99)) * 1000.0
+        top = next((x for x in DISPLACEMENT_STEPS_MM if x >= p99), DISPLACEMENT_RANGE_MM[1])
+        return (0.0, top / 2.0 if colour == "error" else top)
 
     @property
     def conditioning(self) -> str | None:

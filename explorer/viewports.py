@@ -22,7 +22,7 @@ from PySide6.QtWidgets import QHBoxLayout, QWidget
 from latent_model.corpus.sdf import vertex_normals
 
 from explorer.framing import Framing
-from explorer.results import DISPLACEMENT_RANGE_MM, ERROR_RANGE_MM, ViewState
+from explorer.results import ViewState
 from explorer.session import Session
 
 EXAMPLE_VIEWS = ("example_neutral", "example_posed")
@@ -85,6 +85,7 @@ class ViewPanel(QWidget):
         self._actors: dict = {}
         self._texts: dict = {}
         self._mode: tuple | None = None  # (colour, compare, vertices, wireframe, example shown)
+        self._range: tuple[float, float] | None = None  # the prediction views' colour range (mm)
         self._example = None  # the ExamplePair drawn in the example views
         self._example_actors: dict = {}
         self.wireframe = False
@@ -133,7 +134,7 @@ class ViewPanel(QWidget):
         """(Re)create the actors: new topology, colour mode or compare layout."""
         compare = len(state.predictions) > 1
         by_example = state.example is not None
-        rng = ERROR_RANGE_MM if colour == "error" else DISPLACEMENT_RANGE_MM
+        rng = state.colour_range(colour)
         bar_title = "error vs truth (mm)" if colour == "error" else "displacement (mm)"
         for name in TARGET_VIEWS:
             p = self.plotters[name]
@@ -153,7 +154,7 @@ class ViewPanel(QWidget):
             self._actors[n] = _add_smooth(
                 self.plotters[n], self._polys[n], scalars="values", clim=rng,
                 cmap="YlOrRd" if colour == "error" else "YlGnBu", style=style, show_scalar_bar=False)
-        bar = dict(title=bar_title, n_labels=5, fmt="%.0f", vertical=False, position_x=0.15, position_y=0.03,
+        bar = dict(title=bar_title, n_labels=5, fmt="%.1f" if rng[1] < 10 else "%.0f", vertical=False, position_x=0.15, position_y=0.03,
                    width=0.7, height=0.06, color="white", title_font_size=12, label_font_size=11)
         sb = self.plotters["prediction"].add_scalar_bar(mapper=self._actors["prediction"].mapper, **bar)
         sb.SetTextPositionToPrecedeScalarBar()  # tick labels under the bar, the title over it: they never overlap
@@ -162,6 +163,7 @@ class ViewPanel(QWidget):
         for n in EXAMPLE_VIEWS:
             self.plotters[n].setVisible(by_example)
         self._faces = state.faces
+        self._range = rng
         self._mode = (colour, compare, len(state.source), self.wireframe, by_example)
         if not self._camera_set:
             self.set_view("front", render=False)
@@ -190,7 +192,8 @@ class ViewPanel(QWidget):
         compare = len(state.predictions) > 1
         rebuilt = False
         if (self._faces is None or self._faces is not state.faces and not np.array_equal(self._faces, state.faces)
-                or self._mode != (colour, compare, len(state.source), self.wireframe, state.example is not None)):
+                or self._mode != (colour, compare, len(state.source), self.wireframe, state.example is not None)
+                or self._range != state.colour_range(colour)):  # the colour bar's labels follow the range
             self._build(state, colour)
             rebuilt = True
         prev, self.state = self.state, state
