@@ -338,7 +338,8 @@ class Transfer:
         """The corrective of a skinned mesh: source + magnitude × the slider mix of each pose's corrective fields (a
         combo: the sum of its components', as the rig adds them), read from the mesh's own region shape. The fields
         read no latent delta, so there is no noise gate (gate 1) and the oracle is the mean; the nearest-identity
-        strategy reads the nearest training identity's own samples (its rests)."""
+        strategy reads the nearest training identity's own samples (its rests) when one is as alike as the pooled
+        read's (`PoseCorrective.nearest`), and says so when not."""
         if pose is None:
             raise ValueError("predict needs a pose (or an example pair's delta)")
         s = parse_strategy(strategy)
@@ -354,12 +355,17 @@ class Transfer:
         v = mesh.vertices.astype(np.float64)
         out = np.zeros_like(v)
         weights = [(pose, 1.0 - blend if pose_b is not None else 1.0)] + ([(pose_b, blend)] if pose_b is not None else [])
-        moved = False
+        moved, pooled = False, []
         for name, w in weights:
             parts = [c for c in (get_pose(name).components or (name,)) if fields.has(c)]
             for c in parts if note is None and w * magnitude != 0 else ():
-                out += w * magnitude * fields.displacement(v, c, person)
+                d, own = fields.displacement(v, c, person)
+                out += w * magnitude * d
                 moved = True
+                if person is not None and not own:
+                    pooled.append(c)
+        if pooled:
+            note = f"{label}'s own samples are unlike this mesh ({', '.join(pooled)}): the pooled read"
         pred = (v + out).astype(np.float32)
         return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), label, "correctives", note=note)
 

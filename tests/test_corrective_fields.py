@@ -89,21 +89,41 @@ def test_a_held_out_corrective_beats_no_motion_and_scales(with_fields, generator
         np.testing.assert_allclose(half - mesh.vertices, 0.5 * (out.vertices - mesh.vertices), atol=1e-6)
 
 
-def test_the_read_follows_the_mesh_shape(fields, generator):
+def test_the_read_follows_the_mesh_shape(fields, generator, monkeypatch):
     """With one sample read, a training person posed on top of a rest reads that person's own sample in that rest:
     what is read comes from the mesh's region, not from the pose's name alone."""
+    import latent_model.corrective_fields as cf
+    from latent_model.config import preset
+    from latent_model.corpus.build import plan
+
+    monkeypatch.setattr(cf, "NEAREST", 1)
+    c = fields[1].poses["elbowBentLf"]
+    specs, _, _ = plan(preset("tiny").corpus)
+    person = next(s for s in specs if s.id == c.persons[-1])
+    for rest, sample in (("bind", len(c.persons) - 2), ("armsDown", len(c.persons) - 1)):
+        skinned, _ = _skinned(generator, person, rest=rest)
+        assert c.nearest(c.frame(skinned)[3])[0].tolist() == [sample], rest
+    a, _ = fields[1].displacement(_skinned(generator, person, rest="bind")[0], "elbowBentLf")
+    b, _ = fields[1].displacement(_skinned(generator, person, rest="armsDown")[0], "elbowBentLf")
+    assert np.abs(a - b).max() > 1e-4
+
+
+def test_a_person_is_read_only_where_its_samples_are_alike(fields, generator, monkeypatch):
+    import latent_model.corrective_fields as cf
     from latent_model.config import preset
     from latent_model.corpus.build import plan
 
     c = fields[1].poses["elbowBentLf"]
     specs, _, _ = plan(preset("tiny").corpus)
     person = next(s for s in specs if s.id == c.persons[-1])
-    for rest, sample in (("bind", len(c.persons) - 2), ("armsDown", len(c.persons) - 1)):
-        skinned, _ = _skinned(generator, person, rest=rest)
-        assert c.nearest(c.frame(skinned)[3], 1)[0] == sample, rest
-    a = fields[1].displacement(_skinned(generator, person, rest="bind")[0], "elbowBentLf")
-    b = fields[1].displacement(_skinned(generator, person, rest="armsDown")[0], "elbowBentLf")
-    assert np.abs(a - b).max() > 1e-4
+    shape = c.frame(_skinned(generator, person, rest="armsDown")[0])[3]
+    near, own = c.nearest(shape, person.id)
+    assert own and all(c.persons[i] == person.id for i in near)
+    # its own samples lie beyond the single nearest sample's distance when that sample is the other person's
+    other = next(s for s in specs if s.id == c.persons[0])
+    monkeypatch.setattr(cf, "NEAREST", 1)
+    near, own = c.nearest(c.frame(_skinned(generator, other, rest="armsDown")[0])[3], person.id)
+    assert not own and c.persons[near[0]] == other.id
 
 
 def test_a_combo_adds_its_components_and_the_blend_mixes(with_fields, generator, tiny_corpus):

@@ -169,7 +169,7 @@ def validate(fields: CorrectiveFields, specs: list[IdentitySpec]) -> dict[str, d
         for p in fields.poses:
             g = gen.pose(spec, p)
             v = g.skinning.astype(np.float64)
-            e = mesh_errors(v + fields.displacement(v, p), g.skinning_plus_blendshape, v)["explained"]
+            e = mesh_errors(v + fields.displacement(v, p)[0], g.skinning_plus_blendshape, v)["explained"]
             rows.setdefault((p, spec.rest), []).append(e)
     out: dict[str, dict[str, float]] = {}
     for (p, rest), e in rows.items():
