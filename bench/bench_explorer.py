@@ -25,6 +25,8 @@ def main() -> None:
     ap.add_argument("--moves", type=int, default=20)
     ap.add_argument("--threads", type=int, default=2, help="torch threads (default 2, as the app on this machine)")
     ap.add_argument("--pose", default="elbowBentLf")
+    ap.add_argument("--kind", default="neutral_to_pose", help="pair kind (skinning_to_skinning_plus_blendshape: the "
+                                                              "corrective fields)")
     args = ap.parse_args()
     import torch
     from PySide6.QtCore import QEventLoop, QTimer
@@ -36,7 +38,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     app = QApplication.instance() or QApplication(sys.argv[:1])
     t0 = time.perf_counter()
-    win = MainWindow(Selection(pose=args.pose))
+    win = MainWindow(Selection(pose=args.pose, kind=args.kind))
     win.show()  # at the default size (fits 1366x768), as a user gets it
 
     def wait(cond, timeout=600.0):
