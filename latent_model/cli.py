@@ -350,7 +350,8 @@ def cmd_bank(args) -> None:
     bank.save(out)
     print(f"latent bank of {len(bank.keys)} training states, {len(bank.deltas)} (pair kind, pose) deltas -> {out}")
     print(f"noise floor {bank.noise_floor:.3f}; out-of-distribution threshold "
-          + (f"{bank.ood_threshold:.2f} (the farthest validation character's distance to the training states)"
+          + (f"{bank.ood_threshold:.2f} for a neutral source, {bank.ood_threshold_posed:.2f} for a posed one (the farthest "
+             "validation character's distance to the training states)"
              if bank.ood_threshold > 0 else "none (the corpus has no validation split)"))
 
 

@@ -79,23 +79,23 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: Strategy = "mean
         result = transfer.predict_detail(prepared, pose, strategy, magnitude, kind, pose_b, blend)
     except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
         raise PredictError(str(e).strip("'\"")) from None
-    return _with_novelty(transfer, result, prepared), prepared, time.perf_counter() - t0
+    return _with_novelty(transfer, result, prepared, kind), prepared, time.perf_counter() - t0
 
 
 PREDICTOR_NAMES = {"motion": "motion decoder", "pose_fields": "pose fields", "network": "vertex decoder network",
                    "correctives": "corrective fields"}
 
 
-def _with_novelty(transfer, result: "TransferOutput", prepared: "PreparedMesh") -> "TransferOutput":
-    """The result with the mesh's novelty filled in when the bank can judge it (encoding the mesh if needed). Not for
-    the corrective fields unless they read the latent (the nearest identity): they read the mesh's region shape, and
-    the threshold, calibrated on neutral validation characters, would call every posed source novel."""
+def _with_novelty(transfer, result: "TransferOutput", prepared: "PreparedMesh", kind: str) -> "TransferOutput":
+    """The result with the mesh's novelty (as a source of pair kind `kind`) filled in when the bank can judge it
+    (encoding the mesh if needed). Not for
+    the corrective fields unless they read the latent (the nearest identity): they read the mesh's region shape."""
     from dataclasses import replace
 
     if result.predictor == "correctives" and "mu" not in prepared.derived():
         return result
     if result.novelty is None and transfer.bank.ood_threshold > 0:
-        return replace(result, novelty=transfer.novelty(prepared))
+        return replace(result, novelty=transfer.novelty(prepared, kind))
     return result
 
 
@@ -113,7 +113,7 @@ def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: Us
     delta = transfer.example_delta(a, a1)
     target = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
     result = _with_novelty(transfer, transfer.predict_detail(target, None, magnitude=magnitude, kind=kind, delta=delta,
-                                                             detail_delta=transfer.example_detail(a, a1)), target)
+                                                             detail_delta=transfer.example_detail(a, a1)), target, kind)
     novelty = {mesh.name: result.novelty}
     if transfer.bank.ood_threshold > 0:
         novelty[neutral.name] = transfer.novelty(a)

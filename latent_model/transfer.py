@@ -127,6 +127,7 @@ class Novelty:
 
     distance: float
     threshold: float  # 0: the bank has no calibrated threshold (no warning)
+    posed: bool = False  # judged as a posed source (its threshold: the farthest validation posed state)
 
     @property
     def out_of_distribution(self) -> bool:
@@ -136,8 +137,9 @@ class Novelty:
         """A one-line warning for the user, or None when the mesh is within the validated range."""
         if not self.out_of_distribution:
             return None
+        what = "the farthest validation character's posed state" if self.posed else "the farthest validation character"
         return (f"warning: {name} is out of distribution: its latent is {self.distance:.1f} from the nearest training "
-                f"state, beyond {self.threshold:.1f} (the farthest validation character); expect a poor prediction. "
+                f"state, beyond {self.threshold:.1f} ({what}); expect a poor prediction. "
                 f"Check its units, up axis and that it is one humanoid standing")
 
 
@@ -234,11 +236,13 @@ class Transfer:
         return mesh.cache("detail_regions", "cpu", lambda: self.detail.regions(
             mesh.vertices, mesh.faces, mesh.sdf_faces, mesh.surface))
 
-    def novelty(self, mesh: PreparedMesh) -> Novelty:
-        """How far the mesh's latent lies from every training state (encodes the mesh if not yet done)."""
+    def novelty(self, mesh: PreparedMesh, kind: PairKind = "neutral_to_pose") -> Novelty:
+        """How far the mesh's latent lies from every training state (encodes the mesh if not yet done), against the
+        threshold of a source of pair kind `kind` (a neutral's, or a posed source's)."""
         # the distance once per mesh (27k training states: not at every slider move); the threshold as it is now
         distance = mesh.cache("novelty", f"bank:{id(self.bank)}", lambda: self.bank.distance_to_training(mesh.mu))
-        return Novelty(distance, self.bank.ood_threshold)
+        posed = kind != "neutral_to_pose" and self.bank.ood_threshold_posed > 0
+        return Novelty(distance, self.bank.threshold_for(kind), posed)
 
     def noise_gate(self, delta: np.ndarray, averaged: float = 1.0) -> tuple[float, float]:
         """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / its noise: the bank's
@@ -330,7 +334,7 @@ class Transfer:
                 parts.append((self.detail.pose_deltas(pose_b, person), blend))
             raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
-        novelty = self.novelty(mesh) if "mu" in mesh.derived() else None
+        novelty = self.novelty(mesh, kind) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix)
 
     def _corrective_prediction(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy, magnitude: float,

@@ -138,3 +138,29 @@ def test_out_of_distribution_warning(tiny_motion, tiny_corpus):
     squashed = transfer.novelty(transfer.prepare(v * np.array([2.0, 1.0, 0.5], np.float32), c.faces,
                                                  sdf_faces=c.body_faces))
     assert squashed.out_of_distribution
+
+
+def test_a_posed_source_is_judged_against_the_posed_threshold(tiny_motion, tiny_corpus):
+    """A held-out character's skinned pose (a corrective pair's source) lies farther from the training states than its
+    neutral; judged as a source of its own kind it is not novel, doubled in size it is."""
+    from latent_model.bank import calibrate_ood_threshold, calibrate_posed_threshold
+
+    transfer, _ = tiny_motion
+    c, bank = tiny_corpus, transfer.bank
+    kept = bank.ood_threshold, bank.ood_threshold_posed
+    try:
+        bank.ood_threshold = calibrate_ood_threshold(transfer.model, c, bank)
+        bank.ood_threshold_posed = calibrate_posed_threshold(transfer.model, c, bank)
+        assert bank.ood_threshold_posed > 0
+        assert bank.threshold_for("neutral_to_pose") == bank.ood_threshold
+        assert bank.threshold_for("skinning_to_skinning_plus_blendshape") == bank.ood_threshold_posed
+        i = c.split_indices("test", rest="bind")[0]
+        v = c.vertices(c.state(i, "elbowBentLf", "skinning"))
+        held = transfer.novelty(transfer.prepare(v, c.faces, sdf_faces=c.body_faces), "skinning_to_skinning_plus_blendshape")
+        assert held.posed and held.threshold == bank.ood_threshold_posed and not held.out_of_distribution
+        centre = v.mean(axis=0)
+        big = transfer.novelty(transfer.prepare((v - centre) * 2.0 + centre, c.faces, sdf_faces=c.body_faces),
+                               "skinning_to_skinning_plus_blendshape")
+        assert big.out_of_distribution and "posed state" in big.warning("big.obj")
+    finally:
+        bank.ood_threshold, bank.ood_threshold_posed = kept
