@@ -7,8 +7,8 @@ of 12 poses). A corrective depends on the character's build and on how the limb 
 pose), so each pose's fields are pooled over training characters in every training rest configuration: a
 sample is its skinned region, aligned by a similarity to the anchor's (the first sample's), and its corrective
 in that frame. A target reads the mean corrective of the `k` samples whose aligned region shapes lie nearest
-to its own (validation, elbowBentLf: 0.70 of the motion explained in bind and 0.50 in the validation rests;
-the bind samples' mean alone: 0.06 in those rests).
+to its own (validation, elbowBentLf: 0.66 of the motion explained in bind and 0.48-0.49 in the validation
+rests; the bind samples' mean alone: 0.06 in those rests).
 
 Correspondence is by vertex index on anny's topology (every corpus character's): a mesh of another topology
 gets no corrective and is told so (`CorrectiveFields.available`).
