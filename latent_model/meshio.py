@@ -35,6 +35,11 @@ SANE_HEIGHT_M = (0.5, 3.0)  # outside this after unit conversion the scale is ab
 # centre y = -0.13 m (the feet point to -Y), feet at z = -0.505 * stature.
 _ANNY_CENTRE_Y = -0.13
 _ANNY_FEET_PER_HEIGHT = -0.505
+# A posed body's bounding box moves with its limbs (a bent hip or knee: up to 30 cm), its vertices' median x and y
+# do not (measured on the corpus: within 5 cm of its neutral's; neutral medians y -0.18...-0.12): a mesh whose
+# median lies here and whose lowest point is a human's feet in the model frame is already placed.
+_ANNY_MEDIAN_Y = -0.14
+_PLACED_MEDIAN_MM = (80.0, 100.0)  # x, y tolerance of that median
 
 # Y-up (character facing +Z, left hand at +X) -> Z-up facing -Y: rotate +90 deg about X.
 _R_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -211,7 +216,8 @@ def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto
     up: "auto" picks the larger of the Y and Z bounding-box extents (a standing human is taller
     than deep); units: "auto" picks m/cm/mm so that the height is nearest a human's 1.4-2.1 m.
     placement: "auto" re-centres like the model's characters unless the mesh is already Z-up
-    metres and placed like them (then it is kept), "keep" never moves it, "centre" always does.
+    metres and placed like them, in their neutral or in a pose (then it is kept), "keep" never moves it,
+    "centre" always does.
     Raises MeshError for an absurd scale or a bad flag."""
     v = np.asarray(vertices, np.float64)
     ext = np.ptp(v, axis=0)
@@ -242,8 +248,11 @@ def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto
     want = np.array([0.0, _ANNY_CENTRE_Y, _ANNY_FEET_PER_HEIGHT * h_m])
     have = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
     shift = want - have
+    med = np.median(m, axis=0)
+    posed_in_place = (abs(med[0]) * 1000 < _PLACED_MEDIAN_MM[0] and abs(med[1] - _ANNY_MEDIAN_Y) * 1000 < _PLACED_MEDIAN_MM[1]
+                      and _ANNY_FEET_PER_HEIGHT * HUMAN_HEIGHT_M[1] <= lo[2] <= _ANNY_FEET_PER_HEIGHT * HUMAN_HEIGHT_M[0])
     if placement == "keep" or (placement == "auto" and up_axis == "z" and unit == "m"
-                               and np.all(np.abs(shift) < np.array([0.05, 0.1, 0.1]))):
+                               and (np.all(np.abs(shift) < np.array([0.05, 0.1, 0.1])) or posed_in_place)):
         shift = np.zeros(3)
     return Frame(up_axis, unit, R.copy(), scale, shift)
 

@@ -61,6 +61,19 @@ def test_obj_rewrite_keeps_other_lines_and_polygons(tmp_path):
     assert np.allclose(back, user, atol=1e-4)
 
 
+def test_a_posed_character_in_the_model_frame_is_kept_where_it_is(generator, people):
+    """A bent hip moves the bounding box by up to 30 cm: a posed corpus character (a skinned pose, a corrective's or
+    a combo's source) must not be re-centred, or the model reads it displaced (a test character's skinned knee,
+    re-centred by 14 cm, lay 18.6 from the training states instead of 4.2)."""
+    f = np.asarray(generator.faces)
+    for pose in ("kneeBentLf", "hipFlexLf", "shoulderRaiseLf", "hipFlexLf+kneeBentLf"):
+        v = generator.pose(people[0], pose).skinning.astype(np.float64)
+        m = meshio.from_arrays(v, f)
+        assert np.allclose(m.vertices, v, atol=1e-6), pose
+        # the same pose exported by a DCC (Y up, centimetres, elsewhere) is still re-centred
+        assert not np.allclose(meshio.from_arrays(_maya(v), f).frame.offset, 0.0)
+
+
 def test_detection_z_up_millimetres_and_overrides(tmp_path):
     v, f = _human()
     m = meshio.from_arrays(v * 1000.0, f)
