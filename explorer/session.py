@@ -312,17 +312,10 @@ class Session:
         dt = time.perf_counter() - t
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0
         disp = np.linalg.norm(v - source, axis=1) * 1000.0
-        # the corrective fields read the region's shape, not the latent: no latent to judge unless they read it
-        reads_latent = out.predictor != "correctives" or "mu" in prepared.derived()
-        novelty = out.novelty if out.novelty is not None or not reads_latent else self._novelty(prepared, sel.kind)
+        novelty = self.transfer.judged_novelty(out, prepared, sel.kind)
         strategy, label = (strategy, out.label) if example is None else ("example", example.name)
         return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal,
                           novelty, out.detail, out.detail_mix, out.predictor, out.note), dt
-
-    def _novelty(self, prepared, kind: str = "neutral_to_pose"):
-        """The target's Novelty as a source of pair kind `kind` when the bank can judge it (a predictor that did not
-        read the latent leaves it to us: this encodes the mesh once), else None."""
-        return self.transfer.novelty(prepared, kind) if self.transfer.bank.ood_threshold > 0 else None
 
     def compute(self, sel: Selection) -> ViewState:
         """Everything the views show for a selection (the one path: Transfer.prepare + predict)."""

@@ -87,16 +87,10 @@ PREDICTOR_NAMES = {"motion": "motion decoder", "pose_fields": "pose fields", "ne
 
 
 def _with_novelty(transfer, result: "TransferOutput", prepared: "PreparedMesh", kind: str) -> "TransferOutput":
-    """The result with the mesh's novelty (as a source of pair kind `kind`) filled in when the bank can judge it
-    (encoding the mesh if needed). Not for
-    the corrective fields unless they read the latent (the nearest identity): they read the mesh's region shape."""
+    """The result with the mesh's novelty as a source of pair kind `kind` (`Transfer.judged_novelty`)."""
     from dataclasses import replace
 
-    if result.predictor == "correctives" and "mu" not in prepared.derived():
-        return result
-    if result.novelty is None and transfer.bank.ood_threshold > 0:
-        return replace(result, novelty=transfer.novelty(prepared, kind))
-    return result
+    return replace(result, novelty=transfer.judged_novelty(result, prepared, kind))
 
 
 def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: UserMesh, magnitude: float = 1.0,

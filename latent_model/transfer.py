@@ -244,6 +244,16 @@ class Transfer:
         posed = kind != "neutral_to_pose" and self.bank.ood_threshold_posed > 0
         return Novelty(distance, self.bank.threshold_for(kind), posed)
 
+    def judged_novelty(self, out: TransferOutput, mesh: PreparedMesh, kind: PairKind) -> Novelty | None:
+        """A prediction's novelty for the user: its own when it read the latent, else the mesh's against its kind's
+        threshold (encoding it once), or None when the bank cannot judge or nothing read a latent (the corrective
+        fields without the nearest identity read the region's shape only)."""
+        if out.novelty is not None:
+            return out.novelty
+        if self.bank.ood_threshold <= 0 or (out.predictor == "correctives" and "mu" not in mesh.derived()):
+            return None
+        return self.novelty(mesh, kind)
+
     def noise_gate(self, delta: np.ndarray, averaged: float = 1.0) -> tuple[float, float]:
         """(gate in [0, 1], signal) for a raw delta. signal = ||standardised delta|| / its noise: the bank's
         noise floor (the sampling noise of one delta, so a delta of noise alone has signal ~1, the paper's

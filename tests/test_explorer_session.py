@@ -198,6 +198,9 @@ def test_compute_derives_the_pair_once(monkeypatch):
             def poses(kind):
                 return ["elbowBentLf", "kneeBentLf"] if kind == "neutral_to_pose" else []
 
+        def judged_novelty(self, out, mesh, kind):
+            return None  # the bank has no threshold
+
         def prepare(self, v, f, sdf_faces=None):
             from types import SimpleNamespace
 
