@@ -158,6 +158,8 @@ def test_the_evaluation_measures_every_pose_and_rest(with_fields):
 
     specs = [s for s in _held_out() if s.id in ("id002", "id002@tpose")]
     m = evaluate_correctives(with_fields, specs, say=lambda _m: None)
+    two = evaluate_correctives(with_fields, specs, say=lambda _m: None, workers=2)  # one character per process
+    assert list(two) == list(m) and all(two[k] == pytest.approx(v, rel=1e-6, abs=1e-9) for k, v in m.items())
     assert m["correctives.elbowBentLf.no_motion.bind.explained"] == 0.0
     assert m["correctives.elbowBentLf.mean.bind.explained"] > 0.2
     assert {"correctives.targets.mean.tpose.explained", "correctives.targets.nearest.bind.explained"} <= set(m)

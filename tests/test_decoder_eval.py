@@ -1,5 +1,6 @@
 """The decoder's analyses (`analysis/decoder_eval.py`) on the tiny model: per rest, blends, example pairs."""
 import numpy as np
+import pytest
 
 
 def test_decoder_analyses_on_the_tiny_model(tiny_motion, tiny_corpus):
@@ -9,6 +10,11 @@ def test_decoder_analyses_on_the_tiny_model(tiny_motion, tiny_corpus):
     c = tiny_corpus
     test = c.split_indices("test")
     m = decoder_eval.evaluate_decoder(transfer, c, test)
+    # the characters shared between two processes: the same metrics
+    two = decoder_eval.evaluate_decoder(transfer, c, test, workers=2)
+    assert list(two) == list(m)
+    for k, v in m.items():
+        assert two[k] == (pytest.approx(v, rel=1e-6, abs=1e-9) if isinstance(v, float) else v), k
     rests = {c.identities[i].rest for i in test}
     assert rests == {"bind", "tpose"}
     for r in rests:

@@ -13,6 +13,7 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import mesh_errors
+from latent_model.analysis.parallel import map_characters
 from latent_model.corpus.identities import IdentitySpec
 
 KIND = "skinning_to_skinning_plus_blendshape"
@@ -20,29 +21,38 @@ STRATEGIES = (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest")
 TARGET_JOINTS = ("elbow", "knee", "shoulder")  # the issue's target: explained >= 0.3 on these, never below 0
 
 
-def evaluate_correctives(transfer, specs: list[IdentitySpec], say: Callable[[str], None] = print) -> dict:
-    """Metrics `correctives.*` of `transfer`'s corrective fields on the characters `specs` (held out); {} without."""
-    from latent_model.corpus.build import generator, init_generator_worker
-    from latent_model.corpus.sdf import body_component_faces
-
+def evaluate_correctives(transfer, specs: list[IdentitySpec], say: Callable[[str], None] = print,
+                         workers: int = 1) -> dict:
+    """Metrics `correctives.*` of `transfer`'s corrective fields on the characters `specs` (held out); {} without.
+    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics)."""
     if transfer.correctives is None:
         return {}
-    init_generator_worker()
+    t0 = time.time()
+    rows: dict[tuple[str, str, str], list] = {}
+    for part in map_characters(_character, specs, transfer, workers):
+        for key, r in part.items():
+            rows.setdefault(key, []).extend(r)
+    say(f"  correctives: {len(specs)} characters ({time.time() - t0:.0f} s)")
+    return summarise(rows)
+
+
+def _character(transfer, _corpus, _shared, spec: IdentitySpec) -> dict:
+    """{(pose, strategy, rest): [mesh_errors]} of one character posed in every corrective pose."""
+    from latent_model.corpus.build import generator
+    from latent_model.corpus.sdf import body_component_faces
+
     gen = generator()
     faces = np.asarray(gen.faces, np.int64)
     rows: dict[tuple[str, str, str], list] = {}
-    t0 = time.time()
-    for n, spec in enumerate(specs):
-        for pose in transfer.correctives.poses:
-            g = gen.pose(spec, pose)
-            skinned, truth = g.skinning.astype(np.float64), g.skinning_plus_blendshape.astype(np.float64)
-            mesh = transfer.prepare(skinned, faces, body_component_faces(skinned, faces))
-            for strategy, name in STRATEGIES:
-                pred = transfer.predict(mesh, pose, strategy, kind=KIND).astype(np.float64)
-                rows.setdefault((pose, name, spec.rest), []).append(mesh_errors(pred, truth, skinned))
-            rows.setdefault((pose, "no_motion", spec.rest), []).append(mesh_errors(skinned, truth, skinned))
-        say(f"  correctives: {n + 1}/{len(specs)} characters ({time.time() - t0:.0f} s)")
-    return summarise(rows)
+    for pose in transfer.correctives.poses:
+        g = gen.pose(spec, pose)
+        skinned, truth = g.skinning.astype(np.float64), g.skinning_plus_blendshape.astype(np.float64)
+        mesh = transfer.prepare(skinned, faces, body_component_faces(skinned, faces))
+        for strategy, name in STRATEGIES:
+            pred = transfer.predict(mesh, pose, strategy, kind=KIND).astype(np.float64)
+            rows.setdefault((pose, name, spec.rest), []).append(mesh_errors(pred, truth, skinned))
+        rows.setdefault((pose, "no_motion", spec.rest), []).append(mesh_errors(skinned, truth, skinned))
+    return rows
 
 
 def summarise(rows: dict) -> dict:

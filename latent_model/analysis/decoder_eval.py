@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import edge_strain, mesh_errors
+from latent_model.analysis.parallel import map_characters
 from latent_model.corpus.poses import JointRotation, PoseConfig
 from latent_model.corpus.store import Corpus
 from latent_model.types import FINAL
@@ -24,6 +25,7 @@ BROAD = ("elbowBentLf", "elbowBentRt", "kneeBentLf", "kneeBentRt", "clavicleDown
          "shoulderForwardRt", "hipFlexLf", "wristFlexLf", "spineTwistLf", "neckTurnLf", "spineBendFw")
 BLENDS = (("elbowBentLf", "kneeBentLf"), ("shoulderRaiseLf", "hipFlexRt"), ("neckTurnLf", "elbowBentRt"))
 REGION_MM = 10.0  # a blend region: the vertices a pose truly moves by more than this
+SCALES = (1.15, 1.3)  # the bind characters scaled up about their centre: should be flagged out of distribution
 HALF_ELBOW = PoseConfig("elbow23.5Lf", "body", joints=(JointRotation("lowerarm01.L", "hinge", 23.5),))
 
 
@@ -56,27 +58,43 @@ def _mean(rows: list[dict], prefix: str, out: dict) -> None:
         out[f"{prefix}.{k}"] = float(np.mean([r[k] for r in rows]))
 
 
-def rest_transfer(transfer, chars: Characters, ids: list[int], poses: tuple[str, ...] = BROAD) -> dict:
-    """decoder.rests.<rest>.<pose|all>.<mean|nearest>.<metric> over the test characters of each rest."""
-    c, out = chars.c, {}
-    poses = tuple(p for p in poses if p in c.poses)
-    by_rest: dict[str, list[int]] = {}
-    for i in ids:
-        by_rest.setdefault(c.identities[i].rest, []).append(i)
-    for rest, members in by_rest.items():
+def _rest_rows(transfer, chars: Characters, i: int, poses: tuple[str, ...]) -> dict[tuple[str, str], list[dict]]:
+    """{(pose | "all", mean | nearest): [errors]} of character i's broad poses."""
+    c, rows = chars.c, {}
+    mesh = chars.neutral(i)
+    for p in poses:
+        truth = chars.truth(i, p)
+        for strat, name in (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest")):
+            e = _errors(transfer.predict(mesh, p, strat), truth, mesh.vertices, c.faces)
+            rows.setdefault((p, name), []).append(e)
+            rows.setdefault(("all", name), []).append(e)
+    return rows
+
+
+def _rest_summary(by_rest: dict[str, list[dict]]) -> dict:
+    """decoder.rests.<rest>.<pose|all>.<mean|nearest>.<metric> from each rest's characters' `_rest_rows`."""
+    out = {}
+    for rest, parts in by_rest.items():
         rows: dict[tuple[str, str], list[dict]] = {}
-        for i in members:
-            mesh = chars.neutral(i)
-            for p in poses:
-                truth = chars.truth(i, p)
-                for strat, name in (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest")):
-                    e = _errors(transfer.predict(mesh, p, strat), truth, mesh.vertices, c.faces)
-                    rows.setdefault((p, name), []).append(e)
-                    rows.setdefault(("all", name), []).append(e)
+        for part in parts:
+            for key, r in part.items():
+                rows.setdefault(key, []).extend(r)
         for (p, name), r in rows.items():
             _mean(r, f"decoder.rests.{rest}.{p}.{name}", out)
-        out[f"decoder.rests.{rest}.characters"] = len(members)
+        out[f"decoder.rests.{rest}.characters"] = len(parts)
     return out
+
+
+def _broad(chars: Characters, poses: tuple[str, ...] = BROAD) -> tuple[str, ...]:
+    return tuple(p for p in poses if p in chars.c.poses)
+
+
+def rest_transfer(transfer, chars: Characters, ids: list[int], poses: tuple[str, ...] = BROAD) -> dict:
+    """decoder.rests.<rest>.<pose|all>.<mean|nearest>.<metric> over the test characters of each rest."""
+    by_rest: dict[str, list[dict]] = {}
+    for i in ids:
+        by_rest.setdefault(chars.c.identities[i].rest, []).append(_rest_rows(transfer, chars, i, _broad(chars, poses)))
+    return _rest_summary(by_rest)
 
 
 def region_fraction(pred: np.ndarray, truth: np.ndarray, src: np.ndarray) -> float:
@@ -88,23 +106,26 @@ def region_fraction(pred: np.ndarray, truth: np.ndarray, src: np.ndarray) -> flo
     return float((p * t).sum() / max(float((t * t).sum()), 1e-12))
 
 
-def blend_steps(transfer, chars: Characters, ids: list[int], blends=BLENDS, steps: int = 21) -> dict:
+def _blends(chars: Characters, blends=BLENDS) -> list[tuple[str, str]]:
+    return [(a, b) for a, b in blends if a in chars.c.poses and b in chars.c.poses]
+
+
+def _blend_row(transfer, chars: Characters, i: int, a: str, b: str, steps: int = 21) -> tuple[float, float, float, float]:
+    """(largest step / median step, largest step mm, fraction of A's region at 0.5, of B's) of character i's sweep."""
+    mesh = chars.neutral(i)
+    sweep = [transfer.predict(mesh, a, pose_b=b, blend=float(x)) for x in np.linspace(0, 1, steps)]
+    moves = np.array([np.linalg.norm(y - x, axis=1).max() for x, y in zip(sweep, sweep[1:])]) * 1000
+    half = sweep[steps // 2]
+    return (float(moves.max() / max(np.median(moves), 1e-9)), float(moves.max()),
+            region_fraction(half, chars.truth(i, a), mesh.vertices), region_fraction(half, chars.truth(i, b), mesh.vertices))
+
+
+def _blend_summary(rows: dict[tuple[str, str], list[tuple]]) -> dict:
     """decoder.blend.<A>><B>.{step_ratio, step_max_mm, half_A, half_B}: the worst character's step ratio
     (largest step / median step of the sweep), the mean step, the mean fractions at 0.5."""
     out = {}
-    for a, b in blends:
-        if a not in chars.c.poses or b not in chars.c.poses:
-            continue
-        ratios, largest, half_a, half_b = [], [], [], []
-        for i in ids:
-            mesh = chars.neutral(i)
-            sweep = [transfer.predict(mesh, a, pose_b=b, blend=float(x)) for x in np.linspace(0, 1, steps)]
-            moves = np.array([np.linalg.norm(y - x, axis=1).max() for x, y in zip(sweep, sweep[1:])]) * 1000
-            ratios.append(float(moves.max() / max(np.median(moves), 1e-9)))
-            largest.append(float(moves.max()))
-            half = sweep[steps // 2]
-            half_a.append(region_fraction(half, chars.truth(i, a), mesh.vertices))
-            half_b.append(region_fraction(half, chars.truth(i, b), mesh.vertices))
+    for (a, b), r in rows.items():
+        ratios, largest, half_a, half_b = (list(x) for x in zip(*r))
         key = f"decoder.blend.{a}>{b}"
         out.update({f"{key}.step_ratio": max(ratios), f"{key}.step_ratio_median": float(np.median(ratios)),
                     f"{key}.step_max_mm": max(largest), f"{key}.half_a": float(np.mean(half_a)),
@@ -112,86 +133,146 @@ def blend_steps(transfer, chars: Characters, ids: list[int], blends=BLENDS, step
     return out
 
 
-def magnitude_truths(transfer, chars: Characters, ids: list[int], generator) -> dict:
-    """decoder.magnitude.{x2, x0.5}.<metric>: elbowBentLf's mean delta scaled, against the rig's own elbow at
-    97 degrees (elbowSuperBentLf) and at 23.5 degrees."""
-    c, rows = chars.c, {"x2": [], "x0.5": []}
-    for i in ids:
-        mesh = chars.neutral(i)
-        spec = c.identities[i]
-        half = getattr(generator.pose(spec, HALF_ELBOW), FINAL).astype(np.float32)
-        for name, m, truth in (("x2", 2.0, chars.truth(i, "elbowSuperBentLf")), ("x0.5", 0.5, half)):
-            rows[name].append(_errors(transfer.predict(mesh, "elbowBentLf", magnitude=m), truth, mesh.vertices, c.faces))
-    out = {}
-    for name, r in rows.items():
-        _mean(r, f"decoder.magnitude.{name}", out)
+def blend_steps(transfer, chars: Characters, ids: list[int], blends=BLENDS, steps: int = 21) -> dict:
+    """`_blend_summary` of every blend over the characters `ids`."""
+    return _blend_summary({(a, b): [_blend_row(transfer, chars, i, a, b, steps) for i in ids]
+                           for a, b in _blends(chars, blends)})
+
+
+def _magnitude_rows(transfer, chars: Characters, i: int, generator) -> dict[str, dict]:
+    """{"x2", "x0.5": errors} of character i: elbowBentLf's mean delta at magnitude 2 against the rig's 97 degree
+    elbow (elbowSuperBentLf), at 0.5 against the rig's 23.5 degrees."""
+    mesh = chars.neutral(i)
+    half = getattr(generator.pose(chars.c.identities[i], HALF_ELBOW), FINAL).astype(np.float32)
+    return {name: _errors(transfer.predict(mesh, "elbowBentLf", magnitude=m), truth, mesh.vertices, chars.c.faces)
+            for name, m, truth in (("x2", 2.0, chars.truth(i, "elbowSuperBentLf")), ("x0.5", 0.5, half))}
+
+
+def _magnitude_summary(parts: list[dict]) -> dict:
+    out: dict = {}
+    for name in ("x2", "x0.5"):
+        _mean([p[name] for p in parts], f"decoder.magnitude.{name}", out)
     return out
 
 
-def example_transfer(transfer, chars: Characters, ids: list[int], generator, examples=None) -> dict:
-    """decoder.examples.<name>.<metric>: each example made on the first test person (the user's pair, prepared
-    like a user's meshes) and transferred to the others' neutral meshes, against the rig's truth on them."""
+def magnitude_truths(transfer, chars: Characters, ids: list[int], generator) -> dict:
+    """decoder.magnitude.{x2, x0.5}.<metric> over the characters `ids` (`_magnitude_rows`)."""
+    return _magnitude_summary([_magnitude_rows(transfer, chars, i, generator) for i in ids])
+
+
+def _example_pairs(transfer, chars: Characters, ids: list[int], generator, examples=None) -> list[tuple]:
+    """[(name, kind, delta (Z,), {identity id: truth (V, 3)})]: each example made on the first test person (the
+    user's pair, prepared like a user's meshes), its truth on the others."""
     from latent_model.corpus.examples import EXAMPLES, example_pair
 
-    c, out = chars.c, {}
+    c, out = chars.c, []
     specs = [c.identities[i] for i in ids]
     for name in examples or EXAMPLES:
         pair = example_pair(generator, specs, name, specs[0].rest)
         a = transfer.prepare(pair.source_neutral, c.faces, sdf_faces=c.body_faces)
         a1 = transfer.prepare(pair.source_deformed, c.faces, sdf_faces=c.body_faces)
-        delta = transfer.example_delta(a, a1)
-        rows = []
-        for i, spec in zip(ids[1:], specs[1:]):
-            mesh = chars.neutral(i)
-            truth = pair.targets[spec.id][1]
-            rows.append(_errors(transfer.predict(mesh, None, delta=delta), truth, mesh.vertices, c.faces))
-        _mean(rows, f"decoder.examples.{name}", out)
-        out[f"decoder.examples.{name}.kind"] = pair.example.kind
+        out.append((name, pair.example.kind, transfer.example_delta(a, a1),
+                    {s.id: pair.targets[s.id][1] for s in specs[1:]}))
     return out
 
 
-def novelty_check(transfer, chars: Characters, ids: list[int], bind: list[int], scales=(1.15, 1.3)) -> dict:
+def _example_row(transfer, chars: Characters, i: int, delta: np.ndarray, truth: np.ndarray) -> dict:
+    mesh = chars.neutral(i)
+    return _errors(transfer.predict(mesh, None, delta=delta), truth, mesh.vertices, chars.c.faces)
+
+
+def _example_summary(pairs: list[tuple], rows: dict[str, list[dict]]) -> dict:
+    out: dict = {}
+    for name, kind, _, _ in pairs:
+        _mean(rows[name], f"decoder.examples.{name}", out)
+        out[f"decoder.examples.{name}.kind"] = kind
+    return out
+
+
+def example_transfer(transfer, chars: Characters, ids: list[int], generator, examples=None) -> dict:
+    """decoder.examples.<name>.<metric>: each example made on the first test person and transferred to the others'
+    neutral meshes, against the rig's truth on them."""
+    pairs = _example_pairs(transfer, chars, ids, generator, examples)
+    return _example_summary(pairs, {name: [_example_row(transfer, chars, i, delta, truth[chars.c.identities[i].id])
+                                           for i in ids[1:]] for name, _, delta, truth in pairs})
+
+
+def _novelty_row(transfer, chars: Characters, i: int, scales: tuple[float, ...] = ()) -> tuple[float, list[bool]]:
+    """(character i's latent distance to the training states, whether it is flagged scaled up by each of `scales`
+    about its centre)."""
+    mesh = chars.neutral(i)
+    v = mesh.vertices
+    centre = v.mean(axis=0)
+    return transfer.novelty(mesh).distance, [
+        transfer.novelty(transfer.prepare((v - centre) * s + centre, chars.c.faces, sdf_faces=chars.c.body_faces)
+                         ).out_of_distribution for s in scales]
+
+
+def _novelty_summary(threshold: float, distances: list[float], flags: list[list[bool]], scales) -> dict:
     """decoder.novelty.*: the bank's out-of-distribution threshold, the test characters' distances to the
     training states and how many are flagged, and how many of the bind ones scaled up about their centre are."""
-    bank = transfer.bank
-    out = {"decoder.novelty.threshold": float(bank.ood_threshold)}
-    d = [transfer.novelty(chars.neutral(i)).distance for i in ids]
-    out.update({"decoder.novelty.test_max": float(max(d)), "decoder.novelty.test_median": float(np.median(d)),
-                "decoder.novelty.test_flagged": int(sum(x > bank.ood_threshold for x in d)) if bank.ood_threshold else 0,
-                "decoder.novelty.test_n": len(d)})
-    c = chars.c
-    for s in scales:
-        flagged = 0
-        for i in bind:
-            v = chars.neutral(i).vertices
-            centre = v.mean(axis=0)
-            n = transfer.novelty(transfer.prepare((v - centre) * s + centre, c.faces, sdf_faces=c.body_faces))
-            flagged += n.out_of_distribution
-        out[f"decoder.novelty.scaled_{s:g}_flagged"] = int(flagged)
-    out["decoder.novelty.scaled_n"] = len(bind)
+    d = distances
+    out = {"decoder.novelty.threshold": float(threshold), "decoder.novelty.test_max": float(max(d)),
+           "decoder.novelty.test_median": float(np.median(d)),
+           "decoder.novelty.test_flagged": int(sum(x > threshold for x in d)) if threshold else 0,
+           "decoder.novelty.test_n": len(d)}
+    for k, s in enumerate(scales):
+        out[f"decoder.novelty.scaled_{s:g}_flagged"] = int(sum(f[k] for f in flags))
+    out["decoder.novelty.scaled_n"] = len(flags)
     return out
 
 
-def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None) -> dict:
-    """Every analysis above on the test characters `ids` (rests: all of them; the others: those in bind)."""
-    from latent_model.corpus.states import StateGenerator
+def novelty_check(transfer, chars: Characters, ids: list[int], bind: list[int], scales=SCALES) -> dict:
+    """`_novelty_summary` of the characters `ids`, the `bind` ones also scaled."""
+    rows = [_novelty_row(transfer, chars, i, scales if i in bind else ()) for i in ids]
+    return _novelty_summary(transfer.bank.ood_threshold, [d for d, _ in rows], [f for _, f in rows if f], scales)
+
+
+def _character(transfer, corpus: Corpus, shared: tuple, item: tuple) -> dict:
+    """Every analysis of one test character (the bind ones: also blends, magnitudes, example pairs, scaled)."""
+    from latent_model.corpus.build import generator
+
+    poses, blends, magnitudes = shared
+    i, bind, examples = item  # examples: [(name, delta, truth)] to judge on this character
+    chars = Characters(transfer, corpus)
+    out: dict = {"rest": _rest_rows(transfer, chars, i, poses)}
+    if bind:
+        out["blend"] = {ab: _blend_row(transfer, chars, i, *ab) for ab in blends}
+        if magnitudes:
+            out["magnitude"] = _magnitude_rows(transfer, chars, i, generator())
+        out["examples"] = {name: _example_row(transfer, chars, i, delta, truth) for name, delta, truth in examples}
+    out["novelty"] = _novelty_row(transfer, chars, i, SCALES if bind else ())
+    return out
+
+
+def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None,
+                     workers: int = 1) -> dict:
+    """Every analysis above on the test characters `ids` (rests: all of them; the others: those in bind).
+    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics)."""
+    from latent_model.corpus.build import generator
 
     chars = Characters(transfer, corpus)
     bind = [i for i in ids if corpus.identities[i].rest == "bind"]
-    generator = StateGenerator()
-    out: dict = {}
-    say(f"decoder: broad poses in every rest ({len(ids)} characters)")
-    out.update(rest_transfer(transfer, chars, ids))
-    say("decoder: blends")
-    out.update(blend_steps(transfer, chars, bind))
-    if {"elbowBentLf", "elbowSuperBentLf"} <= set(corpus.poses):
-        say("decoder: magnitudes")
-        out.update(magnitude_truths(transfer, chars, bind, generator))
-    if len(bind) >= 2:
-        say("decoder: example pairs")
-        out.update(example_transfer(transfer, chars, bind, generator))
-    say("decoder: out-of-distribution check")
-    out.update(novelty_check(transfer, chars, ids, bind))
+    magnitudes = {"elbowBentLf", "elbowSuperBentLf"} <= set(corpus.poses)
+    pairs = _example_pairs(transfer, chars, bind, generator()) if len(bind) >= 2 else []
+    items = [(i, i in bind, [(name, delta, truth[corpus.identities[i].id]) for name, _, delta, truth in pairs
+                             if i in bind[1:]]) for i in ids]
+    say(f"decoder: broad poses in every rest ({len(ids)} characters), blends, magnitudes, "
+        f"{len(pairs)} example pairs, out-of-distribution check")
+    parts = map_characters(_character, items, transfer, workers, corpus, (_broad(chars), _blends(chars), magnitudes))
+    by_rest: dict[str, list[dict]] = {}
+    for i, part in zip(ids, parts):
+        by_rest.setdefault(corpus.identities[i].rest, []).append(part["rest"])
+    out = _rest_summary(by_rest)
+    binds = [p for p in parts if "blend" in p]
+    out.update(_blend_summary({ab: [p["blend"][ab] for p in binds] for ab in _blends(chars)}))
+    if magnitudes:
+        out.update(_magnitude_summary([p["magnitude"] for p in binds]))
+    if pairs:
+        out.update(_example_summary(pairs, {name: [p["examples"][name] for p in binds if name in p["examples"]]
+                                            for name, _, _, _ in pairs}))
+    out.update(_novelty_summary(transfer.bank.ood_threshold, [p["novelty"][0] for p in parts],
+                                [p["novelty"][1] for p in binds], SCALES))
     return out
 
 

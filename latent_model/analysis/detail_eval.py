@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from latent_model.analysis.metrics import STATIC_MM, cosine_stats, mesh_errors
+from latent_model.analysis.parallel import map_characters
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.poses import get_pose
 from latent_model.detail_poses import detail_regions_of
@@ -48,56 +49,73 @@ def asymmetry_mm(displacement: np.ndarray, mirror: np.ndarray, where: np.ndarray
 
 
 def evaluate_detail(transfer, specs: list[IdentitySpec], poses: tuple[str, ...], noise_persons: int = 4,
-                    say: Callable[[str], None] = print) -> tuple[dict, dict]:
+                    say: Callable[[str], None] = print, workers: int = 1) -> tuple[dict, dict]:
     """(metrics `detail.*`, figure data) of `transfer`'s local detail stage on the characters `specs` (held out
     from its training); figure data: {"example": {source, mean, nearest, truth: (V, 3)}, "region": head vertex
-    indices, "faces", "title"} of FIGURE_POSE on the first character. ({}, {}) without a detail stage."""
-    from latent_model.corpus.build import generator, init_generator_worker
-    from latent_model.corpus.sdf import body_component_faces
-    from latent_model.types import FINAL
-
+    indices, "faces", "title"} of FIGURE_POSE on the first character. ({}, {}) without a detail stage.
+    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics)."""
     if transfer.detail is None:
         return {}, {}
-    init_generator_worker()
-    gen = generator()
-    faces = np.asarray(gen.faces, np.int64)
     singles = detail_poses(poses)
     wanted = singles + ([SYMMETRIC_POSE] if SYMMETRIC_POSE in poses else [])
     deltas: dict[str, list] = {p: [] for p in singles}
     noise: dict[str, list] = {p: [] for p in singles}
     mesh: dict[tuple[str, str, str], list] = {}
-    asym = {"pred": [], "truth": []}
+    asym: dict[str, list] = {"pred": [], "truth": []}
     figure: dict = {}
     t0 = time.time()
-    for n, spec in enumerate(specs):
-        neutral = gen.neutral(spec).astype(np.float64)
-        sdf_faces = body_component_faces(neutral, faces)
-        prepared = transfer.prepare(neutral, faces, sdf_faces)
-        regions = {s: transfer.detail.regions(neutral, faces, sdf_faces, prepared.surface, seed=s)
-                   for s in (NOISE_SEEDS if n < noise_persons else NOISE_SEEDS[:1])}
-        for pose in wanted:
-            posed = getattr(gen.pose(spec, pose), FINAL).astype(np.float64)
-            if pose in deltas:
-                region = detail_regions_of(pose)[0]
-                by_seed = {s: transfer.detail.example_deltas(r, posed)[region] for s, r in regions.items()}
-                deltas[pose].append(by_seed[NOISE_SEEDS[0]])
-                if len(by_seed) > 1:
-                    noise[pose].append(float(np.linalg.norm(by_seed[NOISE_SEEDS[0]] - by_seed[NOISE_SEEDS[1]])))
-            for strategy, name in (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest")):
-                pred = transfer.predict(prepared, pose, strategy, kind="neutral_to_pose").astype(np.float64)
-                if pose == FIGURE_POSE and n == 0:
-                    figure.setdefault("example", {"source": neutral, "truth": posed})[name] = pred
-                    figure.update(region=regions[NOISE_SEEDS[0]].frames["head"].vertices, faces=faces,
-                                  title=f"{spec.id} {FIGURE_POSE}, neutral → pose")
-                e = mesh_errors(pred, posed, neutral)
-                mesh.setdefault((pose, name, spec.rest), []).append(e)
-                if pose == SYMMETRIC_POSE and name == "mean":
-                    moving = np.linalg.norm(posed - neutral, axis=1) * 1000 >= STATIC_MM
-                    mirror = mirror_map(neutral)
-                    asym["pred"].append(asymmetry_mm(pred - neutral, mirror, moving))
-                    asym["truth"].append(asymmetry_mm(posed - neutral, mirror, moving))
-        say(f"  local detail: {n + 1}/{len(specs)} characters ({time.time() - t0:.0f} s)")
+    parts = map_characters(_character, enumerate(specs), transfer, workers, shared=(wanted, noise_persons))
+    for c_deltas, c_noise, c_mesh, c_asym, c_figure in parts:
+        for p, d in c_deltas.items():
+            deltas[p].append(d)
+        for p, x in c_noise.items():
+            noise[p].append(x)
+        for key, rows in c_mesh.items():
+            mesh.setdefault(key, []).extend(rows)
+        for k, x in c_asym.items():
+            asym[k].append(x)
+        figure = figure or c_figure
+    say(f"  local detail: {len(specs)} characters ({time.time() - t0:.0f} s)")
     return _summarise(deltas, noise, mesh, asym), figure
+
+
+def _character(transfer, _corpus, shared: tuple, item: tuple[int, IdentitySpec]) -> tuple:
+    """One character's ({pose: region delta}, {pose: noise distance}, {(pose, strategy, rest): [mesh_errors]},
+    {"pred", "truth": asymmetry mm}, figure data (the first character's, else {}))."""
+    from latent_model.corpus.build import generator
+    from latent_model.corpus.sdf import body_component_faces
+    from latent_model.types import FINAL
+
+    (wanted, noise_persons), (n, spec) = shared, item
+    gen = generator()
+    faces = np.asarray(gen.faces, np.int64)
+    deltas, noise, mesh, asym, figure = {}, {}, {}, {}, {}
+    neutral = gen.neutral(spec).astype(np.float64)
+    sdf_faces = body_component_faces(neutral, faces)
+    prepared = transfer.prepare(neutral, faces, sdf_faces)
+    regions = {s: transfer.detail.regions(neutral, faces, sdf_faces, prepared.surface, seed=s)
+               for s in (NOISE_SEEDS if n < noise_persons else NOISE_SEEDS[:1])}
+    for pose in wanted:
+        posed = getattr(gen.pose(spec, pose), FINAL).astype(np.float64)
+        if pose != SYMMETRIC_POSE:
+            region = detail_regions_of(pose)[0]
+            by_seed = {s: transfer.detail.example_deltas(r, posed)[region] for s, r in regions.items()}
+            deltas[pose] = by_seed[NOISE_SEEDS[0]]
+            if len(by_seed) > 1:
+                noise[pose] = float(np.linalg.norm(by_seed[NOISE_SEEDS[0]] - by_seed[NOISE_SEEDS[1]]))
+        for strategy, name in (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest")):
+            pred = transfer.predict(prepared, pose, strategy, kind="neutral_to_pose").astype(np.float64)
+            if pose == FIGURE_POSE and n == 0:
+                figure.setdefault("example", {"source": neutral, "truth": posed})[name] = pred
+                figure.update(region=regions[NOISE_SEEDS[0]].frames["head"].vertices, faces=faces,
+                              title=f"{spec.id} {FIGURE_POSE}, neutral → pose")
+            mesh.setdefault((pose, name, spec.rest), []).append(mesh_errors(pred, posed, neutral))
+            if pose == SYMMETRIC_POSE and name == "mean":
+                moving = np.linalg.norm(posed - neutral, axis=1) * 1000 >= STATIC_MM
+                mirror = mirror_map(neutral)
+                asym["pred"] = asymmetry_mm(pred - neutral, mirror, moving)
+                asym["truth"] = asymmetry_mm(posed - neutral, mirror, moving)
+    return deltas, noise, mesh, asym, figure
 
 
 def _summarise(deltas: dict, noise: dict, mesh: dict, asym: dict) -> dict:

@@ -4,7 +4,6 @@ metrics.json (stable flat keys) and PNG figures in one directory."""
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
@@ -45,7 +44,7 @@ def add_arguments(p) -> None:
     p.add_argument("--fresh-baselines", action="store_true",
                    help="recompute the no-learning baselines (default: kept per corpus in $LRR_DATA/cache/baselines)")
     p.add_argument("--workers", type=int, default=None,
-                   help="processes sharing the mesh transfer's characters (default: up to 2, one per core)")
+                   help="processes sharing each analysis' characters (default: up to 2, one per core)")
     p.add_argument("--detail", help="local detail file (default: detail.safetensors beside the checkpoint, if any)")
     p.add_argument("--correctives", help="corrective fields file (default: correctives.safetensors beside the "
                                          "checkpoint, if any)")
@@ -67,7 +66,8 @@ def run_cli(args) -> None:
     if args.detail_only:
         out = evaluate_detail_only(ckpt, bank, Path(args.detail) if args.detail else None, args.split, Path(args.out),
                                    args.transfer_ids, progress=not args.quiet,
-                                   correctives=Path(args.correctives) if args.correctives else None)
+                                   correctives=Path(args.correctives) if args.correctives else None,
+                                   workers=args.workers)
         print(f"local detail report written to {out} in {time.perf_counter() - t:.0f} s")
         return
     out = evaluate(ckpt, bank, Path(args.corpus) if args.corpus else None, Path(args.out),
@@ -76,6 +76,15 @@ def run_cli(args) -> None:
                    workers=args.workers, detail=Path(args.detail) if args.detail else None,
                    correctives=Path(args.correctives) if args.correctives else None)
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
+
+
+def _workers(workers: int | None, n_items: int) -> int:
+    """The processes an analysis of `n_items` characters runs on: `workers`, or one per core (at most 2)."""
+    from latent_model.analysis.parallel import default_workers
+
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers {workers}: give 1 or more processes (or leave it out: one per core, at most 2)")
+    return default_workers(n_items) if workers is None else workers
 
 
 def detail_characters(preset, split: str, n: int = 0) -> list:
@@ -110,9 +119,10 @@ def _detail_transfer(checkpoint: Path, bank: Path, detail: Path | None, correcti
 
 
 def evaluate_detail_only(checkpoint: Path, bank: Path, detail: Path | None, split: str, out: Path, per_rest: int = 0,
-                         progress: bool = True, correctives: Path | None = None) -> Path:
+                         progress: bool = True, correctives: Path | None = None, workers: int | None = None) -> Path:
     """`lrr evaluate --detail-only`: the local detail section (faces, fingers, correctives) on the `split`
-    characters -> out/detail.md, detail.json."""
+    characters -> out/detail.md, detail.json. `workers`: processes sharing the characters (None: one per core,
+    at most 2)."""
     from latent_model.analysis import corrective_eval
     from latent_model.analysis.detail_eval import evaluate_detail, markdown
     from latent_model.atomic import atomic_write_json, atomic_write_text
@@ -120,12 +130,13 @@ def evaluate_detail_only(checkpoint: Path, bank: Path, detail: Path | None, spli
     say = print if progress else (lambda _m: None)
     transfer, preset = _detail_transfer(checkpoint, bank, detail, correctives)
     specs = detail_characters(preset, split, per_rest)
+    workers = _workers(workers, len(specs))
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=say)
+    m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=say, workers=workers)
     m["timing.detail_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    m.update(corrective_eval.evaluate_correctives(transfer, specs, say=say))
+    m.update(corrective_eval.evaluate_correctives(transfer, specs, say=say, workers=workers))
     m["timing.correctives_s"] = time.perf_counter() - t
     m["meta.detail_characters"] = [s.id for s in specs]
     atomic_write_json(out / "detail.json", m)
@@ -228,13 +239,12 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
              detail: Path | None = None, correctives: Path | None = None) -> Path:
     """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
     keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time).
-    `workers`: processes sharing the mesh transfer's characters (None: one per core, at most 2). `detail`: the
+    `workers`: processes sharing each analysis' characters (None: one per core, at most 2). `detail`: the
     local detail file (None: the checkpoint's `detail.safetensors` if there is one), in every prediction;
     `correctives` the same for the corrective fields."""
     from latent_model.analysis import figures
 
-    if workers is not None and workers < 1:
-        raise ValueError(f"--workers {workers}: give 1 or more processes (or leave it out: one per core, at most 2)")
+    _workers(workers, 1)  # a bad count fails before any work
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sources import model_source
     from latent_model.analysis.decoder_eval import evaluate_decoder
@@ -289,15 +299,15 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
-    workers = min(2, os.cpu_count() or 1, len(ids)) if workers is None else workers
-    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress, workers=workers)
+    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress, workers=_workers(workers, len(ids)))
     names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields",
              "correctives": "corrective fields"}
     tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
     timings["transfer_s"] = time.perf_counter() - t
     t = time.perf_counter()
     persons = {corpus.identities[i].person_id for i in ids}
-    tm.update(evaluate_decoder(transfer, corpus, [i for i in test if corpus.identities[i].person_id in persons], say))
+    held = [i for i in test if corpus.identities[i].person_id in persons]
+    tm.update(evaluate_decoder(transfer, corpus, held, say, _workers(workers, len(held))))
     timings["decoder_s"] = time.perf_counter() - t
     if transfer.detail is not None:
         from latent_model.analysis.detail_eval import evaluate_detail
@@ -305,7 +315,8 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
         say("local detail (faces, fingers) on the held-out characters, every rest")
         t = time.perf_counter()
         held = detail_characters(preset, "test", DETAIL_PER_REST)
-        dm, detail_fig = evaluate_detail(transfer, held, preset.corpus.pose_names(), say=say)
+        dm, detail_fig = evaluate_detail(transfer, held, preset.corpus.pose_names(), say=say,
+                                         workers=_workers(workers, len(held)))
         tm.update(dm)
         tm["meta.detail_characters"] = [s.id for s in held]
         timings["detail_s"] = time.perf_counter() - t
@@ -314,7 +325,8 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
 
         say("corrective fields on the held-out characters, every rest")
         t = time.perf_counter()
-        tm.update(evaluate_correctives(transfer, detail_characters(preset, "test", DETAIL_PER_REST), say=say))
+        held = detail_characters(preset, "test", DETAIL_PER_REST)
+        tm.update(evaluate_correctives(transfer, held, say=say, workers=_workers(workers, len(held))))
         timings["correctives_s"] = time.perf_counter() - t
 
     say("figures")

@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import mesh_errors, normal_consistency
+from latent_model.analysis.parallel import map_characters
 from latent_model.corpus.pairs import Pair, enumerate_pairs
 from latent_model.types import PAIR_KINDS
 from latent_model.corpus.poses import get_pose
@@ -57,8 +58,6 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     `poses`: the target poses to evaluate (default: every corpus pose). `workers` > 1: the identities are shared
     among that many processes of one thread each (most of the work is single-threaded numpy); the metrics are
     those of one process up to float rounding (each pair is the same computation)."""
-    from tqdm import tqdm
-
     from latent_model.encoding import encode_sample_sets
 
     # offsets copy only within a rest configuration (another rest's offsets start from other positions): the
@@ -85,21 +84,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                                               for j in train]), axis=0)
     shared = (mu_of_row, mean_offsets, near, example_identity)
     jobs = [{k: [p for p in ps if p.identity == i] for k, ps in pairs_by_key.items()} for i in ids]
-    bar = tqdm(total=len(ids), desc="transfer", unit="character", disable=not progress)
-    results = []
-    if workers > 1:
-        import multiprocessing as mp
-
-        with mp.get_context("spawn").Pool(workers, initializer=_init_worker,
-                                          initargs=(transfer, str(corpus.path), shared)) as pool:
-            for r in pool.imap(_work, jobs):
-                results.append(r)
-                bar.update()
-    else:
-        for job in jobs:
-            results.append(_evaluate_pairs(transfer, corpus, job, *shared))
-            bar.update()
-    bar.close()
+    results = map_characters(_character, jobs, transfer, workers, corpus, shared, "transfer", progress)
     # rows in the one-process order: key by key, identity by identity
     per: dict[tuple[str, str, str], list[dict]] = {}
     gates: dict[tuple[str, str, str], list[float]] = {}
@@ -130,18 +115,8 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
     return m, examples
 
 
-_WORKER: dict = {}
-
-
-def _init_worker(transfer, corpus_path: str, shared: tuple) -> None:
-    import torch
-
-    torch.set_num_threads(1)
-    _WORKER.update(transfer=transfer, corpus=Corpus(corpus_path), shared=shared)
-
-
-def _work(job: dict) -> tuple[dict, dict, dict]:
-    return _evaluate_pairs(_WORKER["transfer"], _WORKER["corpus"], job, *_WORKER["shared"])
+def _character(transfer, corpus: Corpus, shared: tuple, job: dict) -> tuple[dict, dict, dict]:
+    return _evaluate_pairs(transfer, corpus, job, *shared)
 
 
 def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str], list[Pair]], mu_of_row: dict,

@@ -50,7 +50,11 @@ def init_generator_worker() -> None:
 
 
 def generator():
-    """This process's state generator (after `init_generator_worker`)."""
+    """This process's state generator (`init_generator_worker`'s, else made on first use, leaving torch's threads)."""
+    if "gen" not in _WORKER:
+        from latent_model.corpus.states import StateGenerator
+
+        _WORKER["gen"] = StateGenerator()
     return _WORKER["gen"]
 
 
