@@ -63,6 +63,27 @@ def _distances(graph, sources: np.ndarray, offsets: np.ndarray | None = None) ->
     return dijkstra(g, indices=n)[:n]
 
 
+def _cross_section_pairs(v: np.ndarray, dist: np.ndarray, sub: np.ndarray, radius: float, band: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols): the pairs (vertex, subsample point) within `radius` in space whose six distances (V, 6) all
+    differ by less than `band`, in no particular order. One k-d tree query over positions and distances together
+    (a box of half-width `radius` in space, `band` in each distance, scaled alike) finds a superset about a third
+    the size of the ball's, and the exact tests then keep the same pairs as a ball query filtered column by column."""
+    from scipy.spatial import cKDTree
+
+    scale = radius / band
+    points = np.concatenate([v, dist * scale], axis=1)
+    box = cKDTree(points).sparse_distance_matrix(cKDTree(points[sub]), radius * (1 + 1e-9), p=np.inf,
+                                                 output_type="coo_matrix")
+    row, col = box.row, box.col
+    d = v[row] - v[sub][col]
+    keep = np.einsum("ij,ij->i", d, d) <= radius * radius
+    edge = np.flatnonzero(keep & (box.data >= radius * (1 - 1e-9)))  # inside the box by less than rounding:
+    for k in range(dist.shape[1]):  # the exact distance test (the others are well inside every band)
+        keep[edge] &= np.abs(dist[row[edge], k] - dist[sub, k][col[edge]]) < band
+    return row[keep], col[keep]
+
+
 def _fill_unreached(vertices: np.ndarray, values: np.ndarray, reached: np.ndarray) -> np.ndarray:
     from scipy.spatial import cKDTree
 
@@ -129,14 +150,7 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
     # over a seeded subsample of the surface (one sparse product instead of a ball query per vertex)
     radius, band = 0.06 * height, 0.025 * height
     sub = np.random.default_rng(0).choice(len(v), size=min(len(v), 4000), replace=False)
-    pairs = cKDTree(v).sparse_distance_matrix(cKDTree(v[sub]), radius, output_type="coo_matrix")
-    # all six distances close: not a thigh by the hand. Column by column from contiguous copies, each column
-    # testing only the pairs the ones before kept (a (pairs, 6) gather, or masking all pairs six times, was slower)
-    row, col = pairs.row, pairs.col
-    cols, sub_cols = np.ascontiguousarray(dist.T), np.ascontiguousarray(dist[sub].T)
-    for k in range(dist.shape[1]):
-        close = np.abs(cols[k][row] - sub_cols[k][col]) < band
-        row, col = row[close], col[close]
+    row, col = _cross_section_pairs(v, dist, sub, radius, band)
     ring = sp.coo_matrix((np.ones(len(row)), (row, col)), shape=(len(v), len(sub))).tocsr()
     count = ring.sum(axis=1).A1
     medial = np.where(count[:, None] > 0, (ring @ v[sub]) / np.maximum(count, 1)[:, None], v)
