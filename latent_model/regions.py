@@ -33,10 +33,15 @@ class RegionSampling:
     near_sigmas: tuple[float, float] = (0.01, 0.05)
     near_fractions: tuple[float, float] = (0.45, 0.45)
     box: float = 1.6
+    # a hand's near samples drawn in proportion to depth ** this (0: every vertex alike), so the fingers, not the
+    # palm and wrist, get most of them
+    hand_depth_power: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 1:
             raise ValueError(f"RegionSampling.k must be a positive integer, got {self.k!r}")
+        if not (math.isfinite(self.hand_depth_power) and self.hand_depth_power >= 0):
+            raise ValueError(f"RegionSampling.hand_depth_power must be >= 0, got {self.hand_depth_power!r}")
         if any(not (math.isfinite(s) and s > 0) for s in self.near_sigmas) or sum(self.near_fractions) > 1:
             raise ValueError(f"RegionSampling: sigmas must be > 0 and fractions sum to <= 1, got {self!r}")
 
@@ -155,7 +160,11 @@ def sample_region(vertices: np.ndarray, body_faces: np.ndarray, frame: RegionFra
     v = np.asarray(vertices, dtype=np.float64)
     if rest is not None:
         frame = frame.follow(rest, v)
-    picks = frame.vertices[rng.integers(0, len(frame.vertices), n0 + n1)]
+    if cfg.hand_depth_power > 0 and frame.name.startswith("hand"):
+        w = np.asarray(frame.depth, np.float64) ** cfg.hand_depth_power
+        picks = frame.vertices[rng.choice(len(frame.vertices), n0 + n1, p=w / w.sum())]
+    else:
+        picks = frame.vertices[rng.integers(0, len(frame.vertices), n0 + n1)]
     sigma = np.repeat(np.asarray(cfg.near_sigmas), [n0, n1])[:, None] * frame.radius
     # offsets drawn in the region's frame, so a turned region carries them with it
     near = v[picks] + (rng.standard_normal((n0 + n1, 3)) * sigma) @ frame.rotation.T

@@ -111,3 +111,25 @@ def test_every_finger_lies_deep_in_its_hand_region(generator, hand_scale):
         assert min(depth[i] for i in np.flatnonzero(moved)) > 2 * EDGE, pose
     # the head's region is untouched by a hand's size, and the hands do not reach the head
     assert not (set(frames["hand_left"].vertices) & set(frames["head"].vertices))
+
+
+def test_hand_samples_can_favour_the_fingers(character):
+    """`hand_depth_power` draws a hand's near samples towards its fingertips (depth 1), the head's as before."""
+    from scipy.spatial import cKDTree
+
+    v, faces, frames, _ = character
+    deep = RegionSampling(k=512, hand_depth_power=3.0)
+    hand = frames["hand_right"]
+    tree = cKDTree(hand.to_local(v[hand.vertices]))
+
+    def mean_depth(cfg: RegionSampling) -> float:
+        points, _ = sample_region(v, faces, hand, cfg, seed=5)
+        n0, _, _ = cfg.counts()
+        return float(hand.depth[tree.query(points[:n0])[1]].mean())  # the tight near samples' vertices
+
+    assert mean_depth(deep) > mean_depth(CFG) + 0.1
+    head = frames["head"]
+    assert all(np.array_equal(a, b) for a, b in zip(sample_region(v, faces, head, CFG, seed=5),
+                                                  sample_region(v, faces, head, RegionSampling(k=512, hand_depth_power=3.0), seed=5)))
+    with pytest.raises(ValueError, match="hand_depth_power"):
+        RegionSampling(hand_depth_power=-1.0)
