@@ -40,8 +40,9 @@ class SurfaceFeatures:
 def _edge_graph(vertices: np.ndarray, faces: np.ndarray):
     import scipy.sparse as sp
 
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    from latent_model.corpus.sdf import mesh_edges
+
+    e = mesh_edges(faces)
     w = np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1) + 1e-9
     n = len(vertices)
     return sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([e[:, 0], e[:, 1]]),

@@ -260,3 +260,13 @@ def test_degenerate_mesh_raises():
 def test_bad_config_raises(kwargs):
     with pytest.raises(ValueError):
         SdfSampling(**kwargs)
+
+
+def test_mesh_edges_are_each_undirected_edge_once(sphere):
+    from latent_model.corpus.sdf import mesh_edges
+
+    f = np.asarray(sphere[1], dtype=np.int64)
+    rows = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    assert np.array_equal(mesh_edges(f), rows)
+    assert len(mesh_edges(f)) == 3 * len(f) // 2  # a closed surface: each edge shared by two triangles
+    assert mesh_edges(np.array([[2, 1, 0], [0, 1, 3]])).tolist() == [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3]]

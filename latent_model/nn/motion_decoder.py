@@ -407,9 +407,11 @@ def heat_averager(vertices, faces, radius: float):
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
+    from latent_model.corpus.sdf import mesh_edges
+
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    e = mesh_edges(f)
     rate = 1.0 / np.maximum(((v[e[:, 0]] - v[e[:, 1]]) ** 2).sum(1), 1e-8)
     n = len(v)
     w = sp.coo_matrix((np.concatenate([rate, rate]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
