@@ -125,7 +125,7 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
     order = _name_extremities(v[picks])
     extremities = {name: picks[k] for name, k in zip(EXTREMITIES, order)}
     dist = np.stack([d_c] + [fields[k] for k in order], axis=1)
-    dist = np.stack([_fill_unreached(v, dist[:, k], reached) for k in range(dist.shape[1])], axis=1)
+    dist = _fill_unreached(v, dist, reached)
     coords = dist / height
     # t: the surface gradient of the centre distance, averaged over neighbourhoods (limb scale)
     import igl

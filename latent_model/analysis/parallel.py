@@ -43,6 +43,8 @@ def map_characters(fn: Callable[..., Any], items: Iterable, transfer, workers: i
             for r in pool.imap(_call, [(fn, item) for item in items]):
                 out.append(r)
                 bar.update()
+            pool.close()  # let the processes exit (leaving the block alone terminates them, leaking semaphores)
+            pool.join()
     bar.close()
     return out
 
