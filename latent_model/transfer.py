@@ -526,7 +526,10 @@ class Transfer:
         x = mesh.cache("motion", dev, tensors)
         smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
                                                                           self.model.cfg.motion.smooth))
+        # the first layer reads the mesh alone: once per mesh, not at every pose, strategy and slider move
+        h0 = mesh.cache("motion_h0", dev, lambda: dec.vertex_input(x["coords"], x["frames"], x["normals"],
+                                                                   x["medial"] - x["v_src"]))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
         return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r * magnitude / dec.delta_scale, kind=k,
                                 smooth=smooth, repivot=self.model.cfg.motion.repivot, r_ref=r / dec.delta_scale,
-                                averaged=torch.tensor([float(averaged)], device=dev))
+                                averaged=torch.tensor([float(averaged)], device=dev), h0=h0)

@@ -158,18 +158,24 @@ class MotionDecoder(nn.Module):
             parts.append(self.averaged_code(averaged, len(mu_src), mu_src))
         return self.cond(torch.cat(parts, dim=-1))
 
-    def motion(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor, medial_offset: torch.Tensor,
-               c: torch.Tensor) -> torch.Tensor:
-        """Per-vertex (w, o, u) in the limb frame (B, N, 9) from coords (B, N, 6), frames (B, N, 3, 3),
-        world normals and medial - x (B, N, 3), condition (B, C)."""
+    def vertex_input(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
+                     medial_offset: torch.Tensor) -> torch.Tensor:
+        """(B, N, hidden) the first layer's output, before the condition modulates it: it depends on the mesh alone,
+        so a prediction can keep it per mesh (`motion(..., h0=)`)."""
         to_local = lambda x: torch.einsum("bnij,bni->bnj", frames, x)  # noqa: E731  F^T x
         x = coord_features(coords)
         if self.local_inputs:
             x = torch.cat([x, to_local(normals), to_local(medial_offset) * 10.0], dim=-1)
         if self.limb_direction:
             x = torch.cat([x, frames[..., :, 0]], dim=-1)
+        return self.inp(x)
+
+    def motion(self, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor, medial_offset: torch.Tensor,
+               c: torch.Tensor, h0: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-vertex (w, o, u) in the limb frame (B, N, 9) from coords (B, N, 6), frames (B, N, 3, 3),
+        world normals and medial - x (B, N, 3), condition (B, C); `h0`: their `vertex_input`, when kept."""
         film = self.film(c).reshape(c.shape[0], 1, self.n_layers + 1, 2, -1)
-        h = self.inp(x)
+        h = self.vertex_input(coords, frames, normals, medial_offset) if h0 is None else h0
         for k, layer in enumerate([None, *self.hidden]):
             if layer is not None:
                 h = layer(h)
@@ -195,15 +201,16 @@ class MotionDecoder(nn.Module):
                      medial: torch.Tensor, mu_src: torch.Tensor, delta_dir: torch.Tensor, r: torch.Tensor,
                      kind: torch.Tensor, c: torch.Tensor | None = None, smooth=None,
                      repivot: float = 0.0, r_ref: torch.Tensor | None = None,
-                     outputs: torch.Tensor | None = None, averaged: torch.Tensor | None = None) -> "RigidMotion":
+                     outputs: torch.Tensor | None = None, averaged: torch.Tensor | None = None,
+                     h0: torch.Tensor | None = None) -> "RigidMotion":
         """The per-vertex motion in world axes (arguments as `forward`), before it acts. Rotation and translation
         are formed per unit r, smoothed (linear, so it commutes with r), optionally re-pivoted at r_ref (the
         motion there is unchanged), then scaled by r. `outputs`: `motion(...)` already computed (training
-        penalises parts of it)."""
+        penalises parts of it); `h0`: the mesh's `vertex_input`, kept between predictions."""
         if outputs is None:
             if c is None:
                 c = self.condition(mu_src, delta_dir, kind, averaged)
-            outputs = self.motion(coords, frames, normals, medial - v_src, c)
+            outputs = self.motion(coords, frames, normals, medial - v_src, c, h0)
         m = outputs
         to_world = lambda x: torch.einsum("bnij,bnj->bni", frames, x)  # noqa: E731  F x
         r = r.reshape(-1, 1, 1)
