@@ -28,7 +28,7 @@ import torch
 
 from latent_model.atomic import atomic_write
 
-FORMAT = "lrr-correctives-1"
+FORMAT = "lrr-correctives-2"  # 2: the topology fingerprint reads quads (`faces_digest`)
 NEAREST = 8  # samples a target reads (validation: 8 over 4 and 16)
 NEAREST_OWN = 2  # of one training person's samples (its rests), for the nearest-identity strategy, when alike
 
@@ -150,10 +150,22 @@ class CorrectiveFields:
 
 
 def faces_digest(faces: np.ndarray) -> str:
-    """A short fingerprint of a triangle list (the topology a vertex index means something in)."""
+    """A short fingerprint of the topology a triangle list (F, 3) gives vertex indices. anny's triangles are its quads,
+    each split in two consecutive triangles along the template's shorter diagonal, and for a near-square quad that
+    choice flips with float rounding between machines: a list of such pairs is read as its quads (each as its four
+    vertices), so any split of the same quads, in any order, has one fingerprint; another list, as its triangles."""
     import hashlib
 
-    return hashlib.sha1(np.ascontiguousarray(faces, np.int64).tobytes()).hexdigest()[:16]
+    f = np.ascontiguousarray(faces, np.int64)
+    a, b = f[0::2], f[1::2]
+    if len(f) and len(f) % 2 == 0 and ((a[:, :, None] == b[:, None, :]).sum((1, 2)) == 2).all():
+        six = np.sort(np.concatenate([a, b], axis=1), axis=1)  # each quad's four vertices, two of them twice
+        keep = np.concatenate([np.ones((len(six), 1), bool), six[:, 1:] != six[:, :-1]], axis=1)
+        f = six[keep].reshape(-1, 4)
+    else:
+        f = np.sort(f, axis=1)
+    f = np.ascontiguousarray(f[np.lexsort(f.T[::-1])])  # in any order
+    return hashlib.sha1(f.tobytes()).hexdigest()[:16]
 
 
 def correctives_beside(checkpoint: str | Path) -> Path | None:

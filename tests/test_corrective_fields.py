@@ -141,6 +141,8 @@ def test_a_combo_adds_its_components_and_the_blend_mixes(with_fields, generator,
 def test_another_topology_gets_no_corrective_and_is_told(with_fields, generator):
     import trimesh
 
+    from latent_model.corrective_fields import faces_digest
+
     skinned, _ = _skinned(generator, _held_out()[0])
     m = trimesh.Trimesh(skinned, np.asarray(generator.faces), process=False).subdivide()
     mesh = with_fields.prepare(m.vertices, m.faces)
@@ -148,9 +150,19 @@ def test_another_topology_gets_no_corrective_and_is_told(with_fields, generator)
     assert np.array_equal(out.vertices, mesh.vertices) and out.gate == 0.0
     assert "anny's topology" in out.note and str(len(m.vertices)) in out.note
     # the same vertex count with other triangles is another topology too
-    f = np.asarray(generator.faces)[:, [1, 0, 2]]
+    f = (np.asarray(generator.faces) + 1) % len(skinned)
     out = with_fields.predict_detail(with_fields.prepare(skinned, f), "elbowBentLf", "mean", kind=KIND)
     assert np.array_equal(out.vertices, skinned.astype(np.float32)) and "other triangles" in out.note
+    # but anny's quads split along their other diagonals (another machine's anny, a DCC export), reordered, are anny's
+    a, b = np.asarray(generator.faces)[0::2], np.asarray(generator.faces)[1::2]
+    shared = [[v for v in x if v in y] for x, y in zip(a, b)]
+    own_a = [[v for v in x if v not in y][0] for x, y in zip(a, b)]
+    own_b = [[v for v in y if v not in x][0] for x, y in zip(a, b)]
+    flipped = np.array([t for s, p, q in zip(shared, own_a, own_b) for t in ([p, s[0], q], [q, s[1], p])])
+    flipped = np.concatenate([flipped[2:], flipped[:2]])
+    assert faces_digest(flipped) == faces_digest(generator.faces) != faces_digest(f)
+    out = with_fields.predict_detail(with_fields.prepare(skinned, flipped), "elbowBentLf", "mean", kind=KIND)
+    assert out.note is None and np.abs(out.vertices - skinned).max() > 1e-3
 
 
 def test_the_evaluation_measures_every_pose_and_rest(with_fields):
