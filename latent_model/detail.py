@@ -25,7 +25,7 @@ from latent_model.atomic import atomic_write
 from latent_model.detail_fields import Placement, RegionFields
 from latent_model.detail_poses import detail_regions_of
 from latent_model.nn.local_detail import LocalDetail, LocalDetailConfig
-from latent_model.regions import REGION_KIND, REGIONS, RegionFrame, RegionSampling, region_frames, sample_region
+from latent_model.regions import REGION_KIND, RegionFrame, RegionSampling, region_frames, sample_region
 
 FORMAT = "lrr-detail-2"
 EDGE = 0.15  # of a region's reach: the local motion fades to 0 over its outer edge (no seam at the neck or wrist)
@@ -135,7 +135,7 @@ class LocalDetailModel:
 
     def gate(self, region: str, delta: np.ndarray, averaged: float) -> tuple[float, float]:
         """(gate, signal) of a region delta against its kind's noise floor (over sqrt(averaged) for a mean)."""
-        from latent_model.transfer import smooth_gate
+        from latent_model.noise_gate import smooth_gate
 
         floor = self.bank.noise.get(REGION_KIND[region], 0.0)
         if floor <= 0:

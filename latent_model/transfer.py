@@ -32,6 +32,7 @@ from latent_model.nn.motion_decoder import (RigidMotion, apply_motion, heat_aver
                                             part_rigidifier, surface_smoother)
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.nn.vertex_decoder import knn_graph
+from latent_model.noise_gate import GATE_HI, GATE_LO, smooth_gate
 from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
@@ -41,17 +42,7 @@ if TYPE_CHECKING:
 
 __all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
 
-# Noise gate, in units of the bank's noise floor (a delta of sampling noise alone is ~1): the
-# predicted displacement is zeroed below GATE_LO and passed untouched above GATE_HI.
-GATE_LO = 1.5
-GATE_HI = 3.0
 CORRECTIVE_KIND = "skinning_to_skinning_plus_blendshape"
-
-
-def smooth_gate(signal: float) -> float:
-    """0 below GATE_LO, 1 above GATE_HI, smoothstep in between (a delta's signal in units of its noise)."""
-    x = min(max((signal - GATE_LO) / (GATE_HI - GATE_LO), 0.0), 1.0)
-    return x * x * (3.0 - 2.0 * x)
 
 
 class PreparedMesh:

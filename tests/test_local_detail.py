@@ -128,10 +128,11 @@ def test_the_detail_evaluation_measures_the_stage(with_detail, tiny_motion, tmp_
     specs = detail_characters(p, "test", 1)
     assert [s.rest for s in specs] == ["bind", "tpose"]
     m, fig = evaluate_detail(with_detail, specs, p.corpus.pose_names(), noise_persons=1, say=lambda _m: None)
-    # the characters shared between two processes: the same metrics and figure
+    # the characters shared between two processes: the same metrics and figure (up to rounding: a process of one
+    # torch thread sums the region codes in another order, and a noise floor is the difference of two near codes)
     m2, fig2 = evaluate_detail(with_detail, specs, p.corpus.pose_names(), noise_persons=1, say=lambda _m: None,
                                workers=2)
-    assert list(m2) == list(m) and all(m2[k] == pytest.approx(v, rel=1e-6, abs=1e-9) for k, v in m.items())
+    assert list(m2) == list(m) and all(m2[k] == pytest.approx(v, rel=1e-3, abs=1e-6) for k, v in m.items())
     np.testing.assert_allclose(fig2["example"]["mean"], fig["example"]["mean"], atol=1e-6)
     for pose in ("browDwLf", "puffLf", "cornerUpLf", "fingerKnuckleB02Lf"):
         assert -1.0 <= m[f"detail.latent.cos.{pose}"] <= 1.0 and m[f"detail.latent.cond_noise.{pose}"] > 0
