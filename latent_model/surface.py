@@ -40,7 +40,7 @@ class SurfaceFeatures:
 def _edge_graph(vertices: np.ndarray, faces: np.ndarray):
     import scipy.sparse as sp
 
-    from latent_model.corpus.sdf import mesh_edges
+    from latent_model.topology import mesh_edges
 
     e = mesh_edges(faces)
     w = np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1) + 1e-9

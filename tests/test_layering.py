@@ -13,12 +13,14 @@ LAYERS = {
     "latent_model.errors": (),
     "latent_model.atomic": (),
     "latent_model.runtime": (),
-    "latent_model.surface": (),  # geometry of any mesh: numpy, scipy, libigl only
+    "latent_model.topology": (),  # connectivity of any mesh: numpy only
+    "latent_model.surface": ("latent_model.topology",),  # geometry of any mesh: numpy, scipy, libigl only
     "latent_model.render": (),
     "latent_model.corpus": ("latent_model.corpus", "latent_model.types", "latent_model.atomic", "latent_model.errors",
-                            "latent_model.render"),
+                            "latent_model.render", "latent_model.topology"),
     "latent_model.config": ("latent_model.corpus.config", "latent_model.types"),
-    "latent_model.nn": ("latent_model.nn", "latent_model.config", "latent_model.types", "latent_model.errors"),
+    "latent_model.nn": ("latent_model.nn", "latent_model.config", "latent_model.types", "latent_model.errors",
+                        "latent_model.topology"),
 }
 # inside inference, from the bottom up: a module never imports one that stands above it
 INFERENCE_ORDER = ("latent_model.encoding", "latent_model.checkpoint", "latent_model.bank", "latent_model.transfer",

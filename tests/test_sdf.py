@@ -263,7 +263,7 @@ def test_bad_config_raises(kwargs):
 
 
 def test_mesh_edges_are_each_undirected_edge_once(sphere):
-    from latent_model.corpus.sdf import mesh_edges
+    from latent_model.topology import mesh_edges
 
     f = np.asarray(sphere[1], dtype=np.int64)
     rows = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)

@@ -60,7 +60,7 @@ def edge_strain(pred: np.ndarray, truth: np.ndarray, source: np.ndarray, faces: 
                 moving_mm: float = 5.0) -> float:
     """sum |pred edge length - true edge length| / sum true edge length (%) over the mesh edges whose two
     ends truly move >= `moving_mm`: how far a prediction stretches or crumples what moves (rigid: ~0)."""
-    from latent_model.corpus.sdf import mesh_edges
+    from latent_model.topology import mesh_edges
 
     e = mesh_edges(faces)
     moved = np.linalg.norm(truth - source, axis=1) * 1000 >= moving_mm

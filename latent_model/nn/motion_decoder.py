@@ -414,7 +414,7 @@ def heat_averager(vertices, faces, radius: float):
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from latent_model.corpus.sdf import mesh_edges
+    from latent_model.topology import mesh_edges
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
