@@ -68,8 +68,9 @@ def _cross_section_pairs(v: np.ndarray, dist: np.ndarray, sub: np.ndarray, radiu
                          ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, cols): the pairs (vertex, subsample point) within `radius` in space whose six distances (V, 6) all
     differ by less than `band`, in no particular order. One k-d tree query over positions and distances together
-    (a box of half-width `radius` in space, `band` in each distance, scaled alike) finds a superset about a third
-    the size of the ball's, and the exact tests then keep the same pairs as a ball query filtered column by column."""
+    (a box of half-width `radius` in space, `band` in each distance, scaled alike) finds a superset of them, 0.6 of the
+    pairs a ball query in space alone returns, and the exact tests keep the same pairs as that query filtered column by
+    column (the band test only where the box's edge is within rounding)."""
     from scipy.spatial import cKDTree
 
     scale = radius / band
