@@ -14,9 +14,12 @@ from typing import Any, Callable, Iterable
 _WORKER: dict = {}
 
 
-def default_workers(n_items: int) -> int:
-    """One process per core, at most 2 (the development machine's cores; more only add memory), at most one per item."""
-    return max(1, min(2, os.cpu_count() or 1, n_items))
+def resolve_workers(workers: int | None, n_items: int) -> int:
+    """The processes an analysis of `n_items` characters runs on: `workers`, or None for one per core, at most 2 (the
+    development machine's cores; more only add memory) and at most one per item."""
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers {workers}: give 1 or more processes (or leave it out: one per core, at most 2)")
+    return max(1, min(2, os.cpu_count() or 1, n_items)) if workers is None else workers
 
 
 def map_characters(fn: Callable[..., Any], items: Iterable, transfer, workers: int = 1, corpus=None,
@@ -26,8 +29,7 @@ def map_characters(fn: Callable[..., Any], items: Iterable, transfer, workers: i
     from tqdm import tqdm
 
     items = list(items)
-    if workers < 1:
-        raise ValueError(f"--workers {workers}: give 1 or more processes (or leave it out: one per core, at most 2)")
+    workers = resolve_workers(workers, len(items))
     bar = tqdm(total=len(items), desc=desc, unit="character", disable=not progress)
     out = []
     if workers == 1 or len(items) < 2:

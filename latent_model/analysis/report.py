@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from latent_model.analysis.parallel import resolve_workers
+
 # The paper's numbers (Tables 2-3, sections 6.2 and 7), shown beside ours.
 PAPER = {
     "latent.pose_consistency.elbowBentLf.cos_mean": 0.958,
@@ -78,15 +80,6 @@ def run_cli(args) -> None:
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
 
 
-def _workers(workers: int | None, n_items: int) -> int:
-    """The processes an analysis of `n_items` characters runs on: `workers`, or one per core (at most 2)."""
-    from latent_model.analysis.parallel import default_workers
-
-    if workers is not None and workers < 1:
-        raise ValueError(f"--workers {workers}: give 1 or more processes (or leave it out: one per core, at most 2)")
-    return default_workers(n_items) if workers is None else workers
-
-
 def detail_characters(preset, split: str, n: int = 0) -> list:
     """The preset's `split` characters in every rest configuration (bind first), at most `n` per rest (0: all)."""
     from latent_model.corpus.build import plan
@@ -130,7 +123,7 @@ def evaluate_detail_only(checkpoint: Path, bank: Path, detail: Path | None, spli
     say = print if progress else (lambda _m: None)
     transfer, preset = _detail_transfer(checkpoint, bank, detail, correctives)
     specs = detail_characters(preset, split, per_rest)
-    workers = _workers(workers, len(specs))
+    workers = resolve_workers(workers, len(specs))
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
     m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=say, workers=workers)
@@ -244,7 +237,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     `correctives` the same for the corrective fields."""
     from latent_model.analysis import figures
 
-    _workers(workers, 1)  # a bad count fails before any work
+    resolve_workers(workers, 1)  # a bad count fails before any work
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sources import model_source
     from latent_model.analysis.decoder_eval import evaluate_decoder
@@ -299,7 +292,8 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
-    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress, workers=_workers(workers, len(ids)))
+    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress,
+                                     workers=resolve_workers(workers, len(ids)))
     names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields",
              "correctives": "corrective fields"}
     tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
@@ -307,7 +301,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     t = time.perf_counter()
     persons = {corpus.identities[i].person_id for i in ids}
     held = [i for i in test if corpus.identities[i].person_id in persons]
-    tm.update(evaluate_decoder(transfer, corpus, held, say, _workers(workers, len(held))))
+    tm.update(evaluate_decoder(transfer, corpus, held, say, resolve_workers(workers, len(held))))
     timings["decoder_s"] = time.perf_counter() - t
     if transfer.detail is not None:
         from latent_model.analysis.detail_eval import evaluate_detail
@@ -316,7 +310,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
         t = time.perf_counter()
         held = detail_characters(preset, "test", DETAIL_PER_REST)
         dm, detail_fig = evaluate_detail(transfer, held, preset.corpus.pose_names(), say=say,
-                                         workers=_workers(workers, len(held)))
+                                         workers=resolve_workers(workers, len(held)))
         tm.update(dm)
         tm["meta.detail_characters"] = [s.id for s in held]
         timings["detail_s"] = time.perf_counter() - t
@@ -326,7 +320,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
         say("corrective fields on the held-out characters, every rest")
         t = time.perf_counter()
         held = detail_characters(preset, "test", DETAIL_PER_REST)
-        tm.update(evaluate_correctives(transfer, held, say=say, workers=_workers(workers, len(held))))
+        tm.update(evaluate_correctives(transfer, held, say=say, workers=resolve_workers(workers, len(held))))
         timings["correctives_s"] = time.perf_counter() - t
 
     say("figures")
