@@ -67,12 +67,18 @@ class MotionDecoderConfig:
 
     enabled: bool = True  # build and train it; Transfer then predicts `kinds` with it
     # pair kinds it predicts at inference (the others: the network). The correctives (skinning -> +blendshape) are
-    # millimetre shape changes, not a motion; source -> combo, read as neutral_to_pose, moved the whole body of
-    # some posed sources (hipFlexLf+kneeBentLf: 158 mm leak, bench/pair_kinds.py): it needs its own training pairs
-    kinds: tuple[PairKind, ...] = ("neutral_to_pose", "blendshape_to_skinning_plus_blendshape")
+    # millimetre shape changes, not a motion. source -> combo read as neutral_to_pose moved the whole body of some
+    # posed sources (hipFlexLf+kneeBentLf: 400 mm leak, bench/pair_kinds.py): a latent step from a posed limb is
+    # another direction than the same joint's from the neutral; it is trained on its own pairs (`posed_prob`)
+    kinds: tuple[PairKind, ...] = ("neutral_to_pose", "blendshape_to_skinning_plus_blendshape", "source_to_combo")
     # pair kinds it has training pairs of; a kind it predicts but has none of is read as the first of these (a
     # blendshape source moved by the skeleton makes the motion a neutral does)
-    trained_kinds: tuple[PairKind, ...] = ("neutral_to_pose",)
+    trained_kinds: tuple[PairKind, ...] = ("neutral_to_pose", "source_to_combo")
+    # probability that a training pair is a source_to_combo pair (a combination's component posed -> the combination,
+    # train/posed_sources.py) of one of `posed_characters` training characters (surface features of each of their
+    # posed sources: ~0.5 s each); 0: none (then source_to_combo must not be in trained_kinds)
+    posed_prob: float = 0.15
+    posed_characters: int = 24
     hidden: int = 128  # per-vertex MLP width
     cond: int = 256  # width of the condition (mu_src, delta direction, pair kind)
     layers: int = 3  # hidden layers, each FiLM-modulated by the condition
@@ -139,6 +145,11 @@ class MotionDecoderConfig:
             check_pair_kind(k)
         if not self.trained_kinds:
             raise ValueError("MotionDecoderConfig.trained_kinds must name at least one pair kind")
+        if ("source_to_combo" in self.trained_kinds) != (self.posed_prob > 0):
+            raise ValueError(f"MotionDecoderConfig: source_to_combo is in trained_kinds only when posed_prob > 0 "
+                             f"(its training pairs); got posed_prob {self.posed_prob}, trained_kinds {self.trained_kinds}")
+        if not 0 <= self.posed_prob < 1:
+            raise ValueError(f"MotionDecoderConfig.posed_prob ({self.posed_prob}) is a probability below 1")
         if min(self.mean_prob, self.other_prob) < 0 or self.mean_prob + self.other_prob > 1:
             raise ValueError(f"MotionDecoderConfig.mean_prob ({self.mean_prob}) and other_prob ({self.other_prob}) "
                              "are probabilities of one draw: each >= 0, together <= 1")
@@ -253,6 +264,9 @@ class Preset:
 
     @staticmethod
     def from_dict(d: dict) -> "Preset":
+        if "motion" in d["model"] and "posed_prob" not in d["model"]["motion"]:
+            # stored before the posed sources: trained without them (its stored kinds say what it predicts)
+            d = {**d, "model": {**d["model"], "motion": {**d["model"]["motion"], "posed_prob": 0.0}}}
         model = _from_dict(ModelConfig, d["model"])
         if "motion" not in d["model"]:  # stored before decoder v2 existed: the model has none
             model = dataclasses.replace(model, motion=MotionDecoderConfig(enabled=False))

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from latent_model.bank import LatentBank
+from latent_model.corpus.pairs import split_bank_key
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
 from latent_model.detail_poses import detail_regions_of
@@ -375,10 +376,19 @@ class Transfer:
         return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), label, "correctives", note=note)
 
     def _local_only(self, pose: str | None, kind: PairKind) -> bool:
-        """Whether the local detail stage moves this pose entirely (every part a face or finger pose it holds): the
-        body decoder, trained on body poses, then adds nothing (its reading of such a delta, 0.1-0.3 of a gate,
-        moved whole cheeks and hands: puffRt explained 0.34 alone, -0.66 with it)."""
-        if self.detail is None or pose is None or kind != "neutral_to_pose" or not self.detail.bank.has(pose):
+        """Whether the body decoder adds nothing to this pose: for neutral_to_pose, when the local detail stage moves
+        it entirely (every part a face or finger pose it holds; the body decoder's reading of such a delta, 0.1-0.3 of
+        a gate, moved whole cheeks and hands: puffRt explained 0.34 alone, -0.66 with it); for source_to_combo, when
+        what the combination adds to its posed component is face and finger poses alone (decoder v2 trains on body
+        combinations; its reading of these was worse than no motion on the test characters: mean -0.06, nearest
+        -0.42 over 43 such keys), with or without the detail stage, which predicts neutral_to_pose only."""
+        if pose is None:
+            return False
+        if kind == "source_to_combo":
+            combo, component = split_bank_key(kind, pose)
+            added = [c for c in get_pose(combo).components if c != component]
+            return bool(added) and all(detail_regions_of(c) for c in added)
+        if self.detail is None or kind != "neutral_to_pose" or not self.detail.bank.has(pose):
             return False
         p = get_pose(pose)
         return all(detail_regions_of(c) for c in (p.components or (p.name,)))

@@ -260,7 +260,8 @@ def test_other_characters_deltas_can_be_mixed_in_pairs_told_as_their_effective_c
     monkeypatch.setattr(motion, "pair_inputs", spy)
     p = preset("tiny")
     m = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=10, batch=4, vertices=64,
-                            mean_prob=0.0, other_prob=1.0, other_mix=1.0, averaged_input=True)
+                            mean_prob=0.0, other_prob=1.0, other_mix=1.0, averaged_input=True,
+                                posed_prob=0.0, trained_kinds=("neutral_to_pose",))  # the neutral pairs alone
     p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=m))
     torch.manual_seed(0)
     motion.train_motion_phase(LatentReRig(p.model).eval(), p, tiny_corpus, tmp_path / "run", torch.device("cpu"),
@@ -522,12 +523,11 @@ def test_transfer_scales_the_surfaces_motion_continuously_and_leaves_magnitude_1
     assert np.linalg.norm(at[2.0] - own2, axis=1).max() > 1e-4
 
 
-def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the_kind_it_learnt(tiny_motion,
-                                                                                                 tiny_corpus):
+def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_each_read_as_the_kind_it_learnt(tiny_motion, tiny_corpus):
     """blendshape -> skinning+blendshape is predicted by the motion decoder from its own delta, on its own
-    (blendshape) source, conditioned as the kind it was trained on; the correctives stay with the network, and so
-    does source -> combo unless the config routes it (then read on its posed source). Routing a kind away gives
-    the network's (another) prediction."""
+    (blendshape) source, conditioned as neutral_to_pose (it has no training pairs of its own); source -> combo is
+    trained on its own pairs (train/posed_sources.py) and read as itself on its posed source; the correctives stay
+    with the network. Routing a kind away gives the network's (another) prediction."""
     import dataclasses
 
     from latent_model.corpus.pairs import pair_states
@@ -535,26 +535,30 @@ def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the
     t, _ = tiny_motion
     c = tiny_corpus
     cfg = t.model.cfg
-    assert cfg.motion.reads_as("source_to_combo") == "neutral_to_pose" == cfg.motion.trained_kinds[0]
+    assert cfg.motion.reads_as("blendshape_to_skinning_plus_blendshape") == "neutral_to_pose"
+    assert cfg.motion.reads_as("source_to_combo") == "source_to_combo"
     assert t.predicts_with("skinning_to_skinning_plus_blendshape") == "network"
-    assert t.predicts_with("source_to_combo") == "network"
+    # what a combination adds to its posed component: face and finger poses alone are not the body decoder's to move
+    for key, local in (("browDwLf+browDwRt<browDwLf", True), ("elbowBentLf+fistLf<elbowBentLf", True),
+                       ("elbowBentLf+fistLf<fingerKnuckleA01Lf", False), ("elbowBentLf+kneeBentLf<kneeBentLf", False),
+                       ("neckTurnLf+jawOpen<jawOpen", False)):
+        assert t._local_only(key, "source_to_combo") is local, key
     i = c.split_indices("test")[0]
     combo = next(p for p in t.bank.poses("source_to_combo"))
-    routed = dataclasses.replace(cfg, motion=dataclasses.replace(cfg.motion, kinds=(*cfg.motion.kinds, "source_to_combo")))
     for kind, key in (("blendshape_to_skinning_plus_blendshape", "elbowBentLf"), ("source_to_combo", combo)):
-        t.model.cfg = routed if kind == "source_to_combo" else cfg
         assert t.predicts_with(kind) == "motion"
         pose, comp = key.split("<") if "<" in key else (key, None)
         (sp, sv), _ = pair_states(kind, pose, comp)
         mesh = t.prepare(c.vertices(c.state(i, sp, sv)), c.faces, sdf_faces=c.body_faces)
         out = t.predict_detail(mesh, key, "mean", kind=kind)
         assert out.predictor == "motion"
-        # the pair kind is read as neutral_to_pose: the same delta given as an example of either kind (one
-        # character's, as the decoder is told) is the same prediction, and as the mean it is told it averages many
+        # the same delta given as an example (one character's, as the decoder is told) of the kind and of
+        # neutral_to_pose: one prediction for the kind read as neutral_to_pose, two for the kind read as itself
         d = t.bank.mean_delta(kind, key)
         as_example = t.predict(mesh, None, delta=d, kind=kind)
-        assert np.allclose(as_example, t.predict(mesh, None, delta=d), atol=1e-6)
-        assert not np.allclose(as_example, out.raw, atol=1e-6)
+        assert np.allclose(as_example, t.predict(mesh, None, delta=d), atol=1e-6) == (cfg.motion.reads_as(kind) ==
+                                                                                      "neutral_to_pose")
+        assert not np.allclose(as_example, out.raw, atol=1e-6)  # and the mean is told it averages many
         assert np.linalg.norm(out.raw - mesh.vertices, axis=1).max() > 1e-3
         # on another source (the neutral) the same delta moves other positions: it reads the source's geometry
         other = t.prepare(c.vertices(c.state(i, None, "neutral")), c.faces, sdf_faces=c.body_faces, mu=mesh.mu)
@@ -566,4 +570,49 @@ def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_reading_them_as_the
             assert t.predict_detail(mesh, key, "mean", kind=kind).predictor == "network"
         finally:
             t.model.cfg = cfg
-    assert t.predicts_with("source_to_combo") == "network"
+
+
+def test_source_to_combo_training_pairs_start_from_the_posed_component(tiny_corpus, tmp_path):
+    """Decoder v2's source_to_combo pairs (train/posed_sources.py): a combination's component in its final state ->
+    the combination's final state of the same character; its inputs are the posed source's own vertices, surface
+    features and latent with the kind source_to_combo; the delta is μ(target) − μ(source), its mean over every
+    training character; the features are kept and read back from the cache."""
+    from latent_model.config import MotionDecoderConfig
+    from latent_model.corpus.poses import get_pose
+    from latent_model.surface import surface_features
+    from latent_model.train.motion import _posed_pair, training_poses
+    from latent_model.train.posed_sources import posed_sources
+    from latent_model.types import FINAL, PAIR_KINDS
+
+    c = tiny_corpus
+    train = c.split_indices("train")
+    rng = np.random.default_rng(0)
+    latent = {}
+
+    def mu_of_state(states):  # any fixed latent per state will do
+        return np.stack([latent.setdefault(s, rng.normal(size=8).astype(np.float32)) for s in states])
+
+    poses = training_poses(c, "body")
+    posed = posed_sources(c, train, poses, 1, mu_of_state, tmp_path, log=lambda _m: None)
+    assert posed.pairs and {i for i, *_ in posed.pairs} == {train[0]}
+    for i, s, t, key in posed.pairs:
+        combo, component = key.split("<")
+        assert get_pose(combo).is_combo and component in get_pose(combo).components
+        assert s == c.state(i, component, FINAL) and t == c.state(i, combo, FINAL)
+        assert np.array_equal(posed.deltas[key][i], latent[t] - latent[s])
+        assert set(posed.deltas[key]) == set(train)  # the mean averages every training character
+        mean, n = posed.mean(key)
+        assert n == len(train) and np.allclose(mean, np.mean([latent[c.state(j, combo, FINAL)] - latent[c.state(
+            j, component, FINAL)] for j in train], axis=0))
+    i, s, t, key = posed.pairs[0]
+    v = c.vertices(s)
+    assert np.abs(v - c.vertices(c.state(i, None, "neutral"))).max() > 0.01  # posed, not the neutral
+    assert np.array_equal(posed.sources[s][2].coords, surface_features(v, c.faces).coords)
+    again = posed_sources(c, train, poses, 1, mu_of_state, tmp_path, log=lambda _m: None)
+    assert np.array_equal(again.sources[s][2].medial, posed.sources[s][2].medial)
+    cfg = MotionDecoderConfig(vertices=64)
+    row, target = _posed_pair(np.random.default_rng(1), posed, 1.0, cfg)
+    assert row["kind"] == PAIR_KINDS.index("source_to_combo") and len(target) == 64
+    k = next(n for n, p in enumerate(posed.pairs) if np.array_equal(row["mu_src"], posed.mu[p[1]]))
+    src = posed.sources[posed.pairs[k][1]][0]
+    assert {tuple(x) for x in row["v_src"]} <= {tuple(x) for x in src}  # its own posed source's vertices

@@ -4,7 +4,8 @@ The encoder is frozen: every state's latent mean is encoded once. Each step draw
 pairs (neutral -> pose of a training character), and of each `vertices` vertices, half where the
 pair moves the surface (> 2 mm) and half anywhere; the condition is the pair's own delta or, with
 probability `mean_prob`, the mean delta of its pose over the training characters (what transfer uses).
-Surface features are computed once per character from its neutral mesh.
+Surface features are computed once per character from its neutral mesh. With probability `posed_prob` a pair is a
+source_to_combo pair instead, on its posed source's own features (train/posed_sources.py).
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
 from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
 from latent_model.train.combo_augment import ExtraPoses, extra_combinations
+from latent_model.train.posed_sources import PosedSources, posed_sources
 from latent_model.train.rest_augment import ExtraCharacters, extra_characters
 from latent_model.types import FINAL, PAIR_KINDS
 
@@ -72,6 +74,7 @@ class DeltaTable:
             mu = mu_rows.cpu().numpy()
         else:
             mu = encode_rows(model, c, rows, device, progress=False).numpy()
+        self.mu_rows = mu  # (G, Z) by geometry row: the rows above filled
         self.mu_neutral = {i: mu[c.row(c.state(i, None, "neutral"))] for i in ids}
         self.delta = {(i, p): mu[c.row(c.state(i, p, FINAL))] - self.mu_neutral[i] for i in ids for p in poses}
         self.mean = {p: np.mean([self.delta[(i, p)] for i in train_ids], axis=0) for p in poses}
@@ -160,9 +163,11 @@ def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repiv
 def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: CharacterCache, table: DeltaTable,
                          train_ids: list[int], poses: tuple[str, ...], cfg: MotionDecoderConfig, seed: int,
                          log=print, validate=None, validate_every: int = 500,
-                         extra: "ExtraCharacters | None" = None, extra_poses: "ExtraPoses | None" = None) -> list[dict]:
+                         extra: "ExtraCharacters | None" = None, extra_poses: "ExtraPoses | None" = None,
+                         posed: "PosedSources | None" = None) -> list[dict]:
     """`extra`: characters beyond the corpus (in `cache` and `table` already) whose pairs are trained on too;
-    `extra_poses`: poses beyond the corpus's of training characters (their deltas in `table` already), likewise."""
+    `extra_poses`: poses beyond the corpus's of training characters (their deltas in `table` already), likewise;
+    `posed`: source_to_combo pairs, drawn with probability `cfg.posed_prob`."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     opt = torch.optim.Adam(decoder.parameters(), lr=cfg.lr)
@@ -178,6 +183,11 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
     for step in range(1, cfg.steps + 1):
         rows, targets = [], []
         for k in rng.integers(len(pairs), size=cfg.batch):
+            if posed is not None and rng.random() < cfg.posed_prob:
+                row, tgt = _posed_pair(rng, posed, table.scale, cfg, reach)
+                rows.append(row)
+                targets.append(tgt)
+                continue
             i, p = pairs[k]
             v = cache.get(i)[0]
             if extra_poses is not None and (i, p) in extra_poses:
@@ -186,12 +196,7 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
                 tgt = extra.target(i, p)
             else:
                 tgt = corpus.vertices(corpus.state(i, p, FINAL))
-            moving = np.flatnonzero(np.linalg.norm(tgt - v, axis=1) > 0.002)
-            half = cfg.vertices // 2
-            idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
-                                  rng.integers(len(v), size=cfg.vertices - half)])
-            if reach is not None:  # a neighbour of each moving sample: the edge term's partner
-                idx = np.concatenate([idx, sample_neighbours(rng, reach, idx[:half])])
+            idx = _vertex_subset(rng, v, tgt, cfg, reach)
             u = rng.random()
             if u < cfg.mean_prob:
                 delta, averaged = table.mean[p], table.mean_count[p]
@@ -239,6 +244,38 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
     return history
 
 
+def _vertex_subset(rng: np.random.Generator, v: np.ndarray, tgt: np.ndarray, cfg: MotionDecoderConfig, reach
+                   ) -> np.ndarray:
+    """The vertices a pair (source v, target tgt (V, 3)) trains on: `cfg.vertices`, half where it moves the surface
+    (> 2 mm) and half anywhere, then (with the edge term's `reach`) a neighbour of each moving one, its partner."""
+    moving = np.flatnonzero(np.linalg.norm(tgt - v, axis=1) > 0.002)
+    half = cfg.vertices // 2
+    idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
+                          rng.integers(len(v), size=cfg.vertices - half)])
+    if reach is not None:
+        idx = np.concatenate([idx, sample_neighbours(rng, reach, idx[:half])])
+    return idx
+
+
+def _posed_pair(rng: np.random.Generator, posed: "PosedSources", scale: float, cfg: MotionDecoderConfig, reach=None
+                ) -> tuple[dict, np.ndarray]:
+    """(inputs, target (n, 3)) of a random posed-source pair on its `_vertex_subset`, conditioned as the neutral
+    pairs are: its key's mean, another training character's delta, or its own."""
+    k = int(rng.integers(len(posed.pairs)))
+    i, s, _, key = posed.pairs[k]
+    v, tgt = posed.sources[s][0], posed.target(k)
+    idx = _vertex_subset(rng, v, tgt, cfg, reach)
+    u = rng.random()
+    if u < cfg.mean_prob:
+        delta, averaged = posed.mean(key)
+    elif u < cfg.mean_prob + cfg.other_prob:
+        who = list(posed.deltas[key])
+        delta, averaged = posed.deltas[key][who[rng.integers(len(who))]], 1
+    else:
+        delta, averaged = posed.deltas[key][i], 1
+    return posed.inputs(k, delta, idx, scale, averaged), tgt[idx]
+
+
 def training_poses(corpus: Corpus, which: str) -> tuple[str, ...]:
     """The corpus poses the motion decoder trains on: "all", or "body" (poses of the body group and the combos
     made only of them: the face and finger poses' deltas are at the latent noise floor, issue 19)."""
@@ -279,6 +316,11 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
                                     preset.train.seed + 7000, device, workers=min(2, os.cpu_count() or 1), log=log,
                                     sizes=m.combo_sizes, odds=m.combo_odds, amplitude=m.combo_amplitude)
         table.add_poses(combos)
+    posed = None
+    if m.posed_prob > 0:
+        posed = posed_sources(corpus, train_ids, poses, m.posed_characters,
+                              lambda states: table.mu_rows[[corpus.row(s) for s in states]],
+                              Path(run_dir) / "surface", workers=min(2, os.cpu_count() or 1), log=log)
     fitted = train_ids + (extra.ids if extra else [])
     dec.delta_scale.fill_(table.scale)
     if dec.averaged_input:
@@ -287,6 +329,6 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
     dec.set_delta_basis(torch.from_numpy(table.directions(fitted, poses)).float())
     dec.train()
     history = train_motion_decoder(dec, corpus, cache, table, train_ids, poses, m, preset.train.seed + 5000,
-                                   log=log, extra=extra, extra_poses=combos)
+                                   log=log, extra=extra, extra_poses=combos, posed=posed)
     dec.eval()
     return history

@@ -1,0 +1,110 @@
+"""Decoder v2's training pairs whose source is posed: `source_to_combo` (a combination's component in its final
+state -> the combination's final state) of training characters.
+
+A latent step taken from a posed limb is another direction than the same joint's step from the neutral (the SDF
+code sees where the limb is): read as a neutral_to_pose delta, hipFlexLf+kneeBentLf's step from the flexed hip moved
+the whole body (400 mm leak on validation) while the knee's own neutral delta bent that knee. So the decoder learns
+the kind from its own pairs, on each posed source's own surface features and latent, as transfer reads it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from latent_model.atomic import atomic_write
+from latent_model.corpus.pairs import enumerate_pairs
+from latent_model.corpus.store import Corpus
+from latent_model.surface import VERSION as SURFACE_VERSION
+from latent_model.surface import SurfaceFeatures, surface_features
+from latent_model.types import PAIR_KINDS
+
+KIND = "source_to_combo"
+
+
+@dataclass
+class PosedSources:
+    """Pairs (character, source state, target state, bank key) and per posed source its vertices (V, 3), normals
+    (V, 3), surface features and latent (Z,); the deltas μ(target) − μ(source) of every training character (for the
+    mean and another character's delta) by bank key."""
+
+    corpus: Corpus
+    pairs: list[tuple[int, int, int, str]]
+    sources: dict[int, tuple[np.ndarray, np.ndarray, SurfaceFeatures]]
+    mu: dict[int, np.ndarray]  # state -> latent mean
+    deltas: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # bank key -> {character: delta}
+
+    def mean(self, key: str) -> tuple[np.ndarray, int]:
+        """(the key's delta averaged over the training characters, how many)."""
+        d = self.deltas[key]
+        return np.mean(list(d.values()), axis=0), len(d)
+
+    def target(self, k: int) -> np.ndarray:
+        """(V, 3) pair k's target vertices."""
+        return self.corpus.vertices(self.pairs[k][2])
+
+    def inputs(self, k: int, delta: np.ndarray, idx: np.ndarray, scale: float, averaged: float) -> dict:
+        """Decoder inputs of pair k's source (the vertices `idx`) with condition `delta` (as `motion.pair_inputs`)."""
+        _, s, _, _ = self.pairs[k]
+        v, n, sf = self.sources[s]
+        r = np.linalg.norm(delta)
+        return {"v_src": v[idx], "coords": sf.coords[idx], "frames": sf.frames[idx], "normals": n[idx],
+                "medial": sf.medial[idx], "mu_src": self.mu[s], "delta_dir": delta / max(r, 1e-12),
+                "r": np.float32(r / scale), "kind": np.int64(PAIR_KINDS.index(KIND)), "averaged": np.float32(averaged)}
+
+
+def _features(args) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    v, faces = args
+    sf = surface_features(v, faces)
+    return sf.coords, sf.frames, sf.medial
+
+
+def posed_sources(corpus: Corpus, train_ids: list[int], poses: tuple[str, ...], n_characters: int,
+                  mu_of_state, cache_dir: Path | None = None, workers: int = 1, log=print) -> PosedSources:
+    """The source_to_combo pairs of `n_characters` training characters spread over `train_ids` (seedless: every
+    k-th), among the combinations in `poses`; the deltas of every training character. `mu_of_state(states)` ->
+    (len(states), Z) latent means (the frozen encoder's)."""
+    import time
+
+    t0 = time.time()
+    all_pairs = enumerate_pairs(train_ids, poses, (KIND,))
+    step = max(1, len(train_ids) // max(n_characters, 1))
+    chosen = set(train_ids[::step][:n_characters])
+    states = sorted({corpus.state(p.identity, *st) for p in all_pairs for st in (p.source, p.target)})
+    mu = dict(zip(states, mu_of_state(states)))
+    deltas: dict[str, dict[int, np.ndarray]] = {}
+    pairs = []
+    for p in all_pairs:
+        s, t = corpus.state(p.identity, *p.source), corpus.state(p.identity, *p.target)
+        deltas.setdefault(p.bank_key, {})[p.identity] = mu[t] - mu[s]
+        if p.identity in chosen:
+            pairs.append((p.identity, s, t, p.bank_key))
+    need = sorted({s for _, s, _, _ in pairs})
+    sources: dict[int, tuple[np.ndarray, np.ndarray, SurfaceFeatures]] = {}
+    todo = []
+    for s in need:
+        path = None if cache_dir is None else Path(cache_dir) / f"{corpus.manifest['config_digest']}_v{SURFACE_VERSION}_s{s}.npz"
+        if path is not None and path.exists():
+            z = np.load(path)
+            sources[s] = (corpus.vertices(s), corpus.normals(s), SurfaceFeatures(z["coords"], z["frames"], z["medial"], {}))
+        else:
+            todo.append((s, path))
+    for (s, path), (coords, frames, medial) in zip(todo, _map(_features, [(corpus.vertices(s), corpus.faces)
+                                                                          for s, _ in todo], workers)):
+        sources[s] = (corpus.vertices(s), corpus.normals(s), SurfaceFeatures(coords, frames, medial, {}))
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(path, lambda tmp: np.savez(tmp, coords=coords, frames=frames, medial=medial))
+    log(f"  posed sources: {len(pairs)} source_to_combo pairs of {len(chosen)} characters, {len(need)} sources "
+        f"({len(todo)} surface features computed, {time.time() - t0:.0f} s)")
+    return PosedSources(corpus, pairs, sources, mu, deltas)
+
+
+def _map(fn, jobs: list, workers: int):
+    if workers <= 1 or len(jobs) < 2:
+        return map(fn, jobs)
+    import multiprocessing as mp
+
+    with mp.get_context("spawn").Pool(workers) as pool:
+        return pool.map(fn, jobs, chunksize=4)
