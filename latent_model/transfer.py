@@ -313,6 +313,10 @@ class Transfer:
             predictor = "network"
         body = (not self._local_only(None if delta is not None else pose, kind),
                 not self._local_only(pose_b if d_b is not None else None, kind))
+        note = None
+        if kind == "source_to_combo" and not all(body):
+            note = ("what the combination adds to its posed part is face or finger poses: the body decoder does not move "
+                    "them, and the local detail stage predicts neutral -> pose only")
         if predictor == "motion":
             raw, gated, gate, signal = self._motion_prediction(mesh, (d, n), None if d_b is None else (d_b, n_b),
                                                                blend, magnitude, kind, body)
@@ -337,7 +341,7 @@ class Transfer:
             raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude)
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh, kind) if "mu" in mesh.derived() else None
-        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix)
+        return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix, note)
 
     def _corrective_prediction(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy, magnitude: float,
                                pose_b: str | None, blend: float) -> TransferOutput:

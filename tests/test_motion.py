@@ -543,6 +543,15 @@ def test_the_motion_decoder_predicts_the_skeletal_pair_kinds_each_read_as_the_ki
                        ("elbowBentLf+fistLf<fingerKnuckleA01Lf", False), ("elbowBentLf+kneeBentLf<kneeBentLf", False),
                        ("neckTurnLf+jawOpen<jawOpen", False)):
         assert t._local_only(key, "source_to_combo") is local, key
+    # such a key (the tiny corpus has none: one made of a body key's deltas) predicts no motion and says why
+    body_key = next(p for p in t.bank.poses("source_to_combo"))
+    bank = dataclasses.replace(t.bank, deltas={**t.bank.deltas, ("source_to_combo", "browDwLf+browDwRt<browDwLf"):
+                                               t.bank.deltas[("source_to_combo", body_key)]})
+    face = type(t)(t.model, bank, t.sdf_k)
+    mesh = face.prepare(c.vertices(c.state(c.split_indices("test")[0], None, "neutral")), c.faces)
+    out = face.predict_detail(mesh, "browDwLf+browDwRt<browDwLf", "mean", kind="source_to_combo")
+    assert out.gate == 0.0 and np.array_equal(out.vertices, mesh.vertices) and "face or finger" in out.note
+    assert face.predict_detail(mesh, body_key, "mean", kind="source_to_combo").note is None
     i = c.split_indices("test")[0]
     combo = next(p for p in t.bank.poses("source_to_combo"))
     for kind, key in (("blendshape_to_skinning_plus_blendshape", "elbowBentLf"), ("source_to_combo", combo)):
