@@ -25,7 +25,7 @@ from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
 from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
 from latent_model.train.combo_augment import ExtraPoses, extra_combinations
-from latent_model.train.posed_sources import PosedSources, posed_sources
+from latent_model.train.posed_sources import KIND, PosedSources, posed_sources
 from latent_model.train.rest_augment import ExtraCharacters, extra_characters
 from latent_model.types import FINAL, PAIR_KINDS
 
@@ -135,12 +135,18 @@ def pair_inputs(cache: CharacterCache, table: DeltaTable, i: int, pose: str, del
     """Decoder inputs of character i's neutral (all vertices, or `idx`) with condition `delta`, which averages
     the deltas of `averaged` characters (a pose's mean: `table.mean_count[pose]`)."""
     v, n, sf = cache.get(i)
+    return source_inputs(v, n, sf, table.mu_neutral[i], delta, idx, table.scale, "neutral_to_pose", averaged)
+
+
+def source_inputs(v: np.ndarray, n: np.ndarray, sf: SurfaceFeatures, mu_src: np.ndarray, delta: np.ndarray,
+                  idx: np.ndarray | None, scale: float, kind: str, averaged: float) -> dict:
+    """Decoder inputs of a source mesh (vertices, normals (V, 3), its surface features; all vertices, or `idx`) and
+    latent mu_src (Z,) with condition `delta` (Z,) of pair kind `kind` (its length over the table's `scale`)."""
     sel = slice(None) if idx is None else idx
     r = np.linalg.norm(delta)
     return {"v_src": v[sel], "coords": sf.coords[sel], "frames": sf.frames[sel], "normals": n[sel],
-            "medial": sf.medial[sel], "mu_src": table.mu_neutral[i], "delta_dir": delta / max(r, 1e-12),
-            "r": np.float32(r / table.scale), "kind": np.int64(PAIR_KINDS.index("neutral_to_pose")),
-            "averaged": np.float32(averaged)}
+            "medial": sf.medial[sel], "mu_src": mu_src, "delta_dir": delta / max(r, 1e-12),
+            "r": np.float32(r / scale), "kind": np.int64(PAIR_KINDS.index(kind)), "averaged": np.float32(averaged)}
 
 
 def predict(decoder: MotionDecoder, inputs: dict, smooth=None, rigid=None, repivot: float = 0.0,
@@ -263,7 +269,7 @@ def _posed_pair(rng: np.random.Generator, posed: "PosedSources", scale: float, c
     pairs are: its key's mean, another training character's delta, or its own."""
     k = int(rng.integers(len(posed.pairs)))
     i, s, _, key = posed.pairs[k]
-    v, tgt = posed.sources[s][0], posed.target(k)
+    (v, n, sf), tgt = posed.sources[s], posed.target(k)
     idx = _vertex_subset(rng, v, tgt, cfg, reach)
     u = rng.random()
     if u < cfg.mean_prob:
@@ -273,7 +279,7 @@ def _posed_pair(rng: np.random.Generator, posed: "PosedSources", scale: float, c
         delta, averaged = posed.deltas[key][who[rng.integers(len(who))]], 1
     else:
         delta, averaged = posed.deltas[key][i], 1
-    return posed.inputs(k, delta, idx, scale, averaged), tgt[idx]
+    return source_inputs(v, n, sf, posed.mu[s], delta, idx, scale, KIND, averaged), tgt[idx]
 
 
 def training_poses(corpus: Corpus, which: str) -> tuple[str, ...]:

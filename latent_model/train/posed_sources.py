@@ -18,7 +18,6 @@ from latent_model.corpus.pairs import enumerate_pairs
 from latent_model.corpus.store import Corpus
 from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
-from latent_model.types import PAIR_KINDS
 
 KIND = "source_to_combo"
 
@@ -35,23 +34,16 @@ class PosedSources:
     mu: dict[int, np.ndarray]  # state -> latent mean
     deltas: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)  # bank key -> {character: delta}
 
+    def __post_init__(self) -> None:
+        self._means = {key: np.mean(list(d.values()), axis=0) for key, d in self.deltas.items()}  # drawn every step
+
     def mean(self, key: str) -> tuple[np.ndarray, int]:
         """(the key's delta averaged over the training characters, how many)."""
-        d = self.deltas[key]
-        return np.mean(list(d.values()), axis=0), len(d)
+        return self._means[key], len(self.deltas[key])
 
     def target(self, k: int) -> np.ndarray:
         """(V, 3) pair k's target vertices."""
         return self.corpus.vertices(self.pairs[k][2])
-
-    def inputs(self, k: int, delta: np.ndarray, idx: np.ndarray, scale: float, averaged: float) -> dict:
-        """Decoder inputs of pair k's source (the vertices `idx`) with condition `delta` (as `motion.pair_inputs`)."""
-        _, s, _, _ = self.pairs[k]
-        v, n, sf = self.sources[s]
-        r = np.linalg.norm(delta)
-        return {"v_src": v[idx], "coords": sf.coords[idx], "frames": sf.frames[idx], "normals": n[idx],
-                "medial": sf.medial[idx], "mu_src": self.mu[s], "delta_dir": delta / max(r, 1e-12),
-                "r": np.float32(r / scale), "kind": np.int64(PAIR_KINDS.index(KIND)), "averaged": np.float32(averaged)}
 
 
 def _features(args) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
