@@ -153,9 +153,9 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
     radius, band = 0.06 * height, 0.025 * height
     sub = np.random.default_rng(0).choice(len(v), size=min(len(v), 4000), replace=False)
     row, col = _cross_section_pairs(v, dist, sub, radius, band)
-    ring = sp.coo_matrix((np.ones(len(row)), (row, col)), shape=(len(v), len(sub))).tocsr()
-    count = ring.sum(axis=1).A1
-    medial = np.where(count[:, None] > 0, (ring @ v[sub]) / np.maximum(count, 1)[:, None], v)
+    count = np.bincount(row, minlength=len(v))  # sums by bincount: a sparse matrix of the 1.5M pairs took 3x as long
+    total = np.stack([np.bincount(row, weights=v[sub, k][col], minlength=len(v)) for k in range(3)], axis=1)
+    medial = np.where(count[:, None] > 0, total / np.maximum(count, 1)[:, None], v)
     # smoothed over the surface as t is: raw cross-section means jump by cm between neighbours, and a
     # joint's pivot that jumps turns neighbouring vertices about different points (a crumpled hand)
     for _ in range(smooth):

@@ -295,7 +295,7 @@ class Transfer:
         `delta`: pose A's raw latent delta given directly (an example pair's, `example_delta`) instead of
         the strategy's; `pose` may then be None; `detail_delta` its region deltas (`example_detail`).
         With a local detail stage, `neutral_to_pose` adds what a face or finger pose does inside the head and
-        hands (`_add_detail`)."""
+        hands, `source_to_combo` what the combination's added face poses do (`_detail_parts`, `_add_detail`)."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
         if delta is None and self.predicts_with(kind) == "correctives":
             return self._corrective_prediction(mesh, pose, strategy, magnitude, pose_b, blend)
@@ -314,9 +314,6 @@ class Transfer:
         body = (not self._local_only(None if delta is not None else pose, kind),
                 not self._local_only(pose_b if d_b is not None else None, kind))
         note = None
-        if kind == "source_to_combo" and not all(body):
-            note = ("what the combination adds to its posed part is face or finger poses: the body decoder does not move "
-                    "them, and the local detail stage predicts neutral -> pose only")
         if predictor == "motion":
             raw, gated, gate, signal = self._motion_prediction(mesh, (d, n), None if d_b is None else (d_b, n_b),
                                                                blend, magnitude, kind, body)
@@ -332,13 +329,22 @@ class Transfer:
             gated = raw if gate == 1.0 else (mesh.vertices + np.float32(gate) * (raw - mesh.vertices)).astype(np.float32)
         detail_gates: dict[str, float] = {}
         mix: dict[str, dict[str, float]] = {}
-        if self.detail is not None and kind == "neutral_to_pose":
+        parts: list = []
+        if self.detail is not None and kind in ("neutral_to_pose", "source_to_combo"):
             person = None if label in ("mean", "oracle", "example") else label.split("@")[0]
-            a_part = (detail_delta or {}, 1) if delta is not None else self.detail.pose_deltas(pose, person)
-            parts = [(a_part, 1.0 - blend if d_b is not None else 1.0)]
+            w_a = 1.0 - blend if d_b is not None else 1.0
+            if delta is not None:  # an example pair's region deltas: neutral -> posed
+                parts = [((detail_delta or {}, 1), w_a)] if kind == "neutral_to_pose" else []
+            else:
+                parts = [(part, w_a * w) for part, w in self._detail_parts(pose, kind, person)]
             if d_b is not None:
-                parts.append((self.detail.pose_deltas(pose_b, person), blend))
+                parts += [(part, blend * w) for part, w in self._detail_parts(pose_b, kind, person)]
             raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude)
+        if kind == "source_to_combo" and not all(body) and not any(d for (d, _), _ in parts):
+            note = ("what the combination adds to its posed part is " + ("finger poses: the body decoder does not move "
+                    "them, and the local detail stage adds face poses only (a fist's knuckles chain; its fields add)"
+                    if self.detail is not None else "face or finger poses: the body decoder does not move them, and "
+                    "this model has no local detail stage"))
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh, kind) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix, note)
@@ -385,7 +391,7 @@ class Transfer:
         a gate, moved whole cheeks and hands: puffRt explained 0.34 alone, -0.66 with it); for source_to_combo, when
         what the combination adds to its posed component is face and finger poses alone (decoder v2 trains on body
         combinations; its ungated reading of these 43 keys on the validation characters explained mean -2.2, nearest
-        -22.7), with or without the detail stage, which predicts neutral_to_pose only."""
+        -22.7), with or without the detail stage (which adds the face poses among them, `_detail_parts`)."""
         if pose is None:
             return False
         if kind == "source_to_combo":
@@ -396,6 +402,19 @@ class Transfer:
             return False
         p = get_pose(pose)
         return all(detail_regions_of(c) for c in (p.components or (p.name,)))
+
+    def _detail_parts(self, key: str, kind: PairKind, person: str | None) -> list[tuple[tuple[dict, int], float]]:
+        """[(({region: delta}, averaged), weight)] the local detail stage adds for a bank key: a pose's own region
+        deltas (`neutral_to_pose`); for `source_to_combo`, what the combination adds to its posed component: each
+        added face pose's deltas (the rig adds face shapes; the component's own detail is in the source). Added
+        finger poses get none: a fist's knuckles chain along each finger while the fields add, and on the validation
+        characters the fist from a knuckle or a bent elbow read so explained less than no motion (mean -0.02 to
+        -0.30 over three rests; face additions 0.51-0.55)."""
+        if kind != "source_to_combo":
+            return [(self.detail.pose_deltas(key, person), 1.0)]
+        combo, component = split_bank_key(kind, key)
+        added = [c for c in get_pose(combo).components if c != component and detail_regions_of(c) == ("head",)]
+        return [(self.detail.pose_deltas(c, person), 1.0) for c in added]
 
     def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float
                     ) -> tuple[np.ndarray, np.ndarray, dict[str, float], dict[str, dict[str, float]]]:

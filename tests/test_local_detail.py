@@ -178,3 +178,30 @@ def test_a_pose_made_of_face_parts_is_the_stages_alone(with_detail, tiny_motion,
     p = Prediction("mean_pose_delta", "mean", v, None, np.zeros(len(v)), None, out.gate, out.signal, None, out.detail,
                    out.detail_mix)
     assert "head = browDwLf" in p.title
+
+
+def test_a_combination_adding_face_poses_to_its_posed_part_moves_them_by_the_stage(with_detail, tiny_corpus):
+    """source_to_combo: what browDwLf+browDwRt adds to its posed browDwRt is browDwLf's local detail (the body decoder
+    moves none of it); what a fist adds to a bent elbow is not the stage's (chained knuckles), and the output says so.
+    (The tiny corpus has no such keys: they are made here of a body key's deltas, which the body decoder ignores.)"""
+    from latent_model.detail import LocalDetailModel
+
+    t = with_detail
+    body_key = next(p for p in t.bank.poses("source_to_combo"))
+    fake = {("source_to_combo", k): t.bank.deltas[("source_to_combo", body_key)]
+            for k in ("browDwLf+browDwRt<browDwRt", "elbowBentLf+fistLf<elbowBentLf")}
+    # the tiny model's region deltas sit under its noise floors (gated to nothing): floors lowered to see the motion
+    d = t.detail
+    detail = LocalDetailModel(d.net, dataclasses.replace(d.bank, noise={k: 1e-3 * v for k, v in d.bank.noise.items()}),
+                              d.fields)
+    face = type(t)(t.model, dataclasses.replace(t.bank, deltas={**t.bank.deltas, **fake}), t.sdf_k, detail=detail)
+    _, mesh = _target(tiny_corpus, face)
+    head = np.zeros(len(mesh.vertices), bool)
+    head[face.regions(mesh).frames["head"].vertices] = True
+    out = face.predict_detail(mesh, "browDwLf+browDwRt<browDwRt", kind="source_to_combo")
+    assert out.gate == 0.0 and out.note is None and "head" in out.detail
+    moved = np.linalg.norm(out.vertices - mesh.vertices, axis=1)
+    assert moved[head].max() > 1e-4 and moved[~head].max() == 0.0
+    assert np.array_equal(out.vertices, face.predict(mesh, "browDwLf"))  # the added pose's own local detail
+    fist = face.predict_detail(mesh, "elbowBentLf+fistLf<elbowBentLf", kind="source_to_combo")
+    assert np.array_equal(fist.vertices, mesh.vertices) and fist.detail == {} and "finger poses" in fist.note
