@@ -52,7 +52,8 @@ class PreparedMesh:
     samples, and the per-device feature caches of the pose fields and the decoder network."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray, knn_k: int,
-                 encode: Callable[[np.ndarray, np.ndarray], np.ndarray], mu: np.ndarray | None = None) -> None:
+                 encode: Callable[[np.ndarray, np.ndarray], np.ndarray], mu: np.ndarray | None = None,
+                 surface=None) -> None:
         self.vertices = vertices  # (V, 3) float32
         self.faces = faces  # (F, 3) int64
         self.sdf_faces = sdf_faces  # (F', 3) the closed shell its SDF is sampled on
@@ -60,6 +61,8 @@ class PreparedMesh:
         self._encode = encode
         if mu is not None:
             self.__dict__["mu"] = np.asarray(mu, np.float32)
+        if surface is not None:
+            self.__dict__["surface"] = surface
         self._caches: dict[tuple[str, str], object] = {}
 
     @cached_property
@@ -174,8 +177,9 @@ class Transfer:
                                                                             sdf_faces, cfg, s), self.device)[0]
 
     def prepare(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray | None = None,
-                mu: np.ndarray | None = None, seed: int = 0) -> PreparedMesh:
-        """A mesh (in the model frame) ready for `predict`; `mu` when its latent is known already.
+                mu: np.ndarray | None = None, seed: int = 0, surface=None) -> PreparedMesh:
+        """A mesh (in the model frame) ready for `predict`; `mu` when its latent is known already, `surface` its
+        `surface.SurfaceFeatures` when they are (`surface_cache`: a corpus state's, kept on disk).
         Only the SDF shell (the body component, unless given) is found now: the latent, normals and
         neighbourhoods follow on first read."""
         v = np.asarray(vertices, dtype=np.float32)
@@ -187,7 +191,7 @@ class Transfer:
         if sdf_faces is None:
             sdf_faces = body_component_faces(v.astype(np.float64), f)
         return PreparedMesh(v, f, sdf_faces, self.model.cfg.decoder.knn,
-                            lambda vv, ff: self.encode(vv, ff, seed), mu)
+                            lambda vv, ff: self.encode(vv, ff, seed), mu, surface)
 
     # ------------------------------------------------------------------ conditioning
     def delta(self, mesh: PreparedMesh, pose: str, strategy: Strategy, kind: PairKind = "neutral_to_pose",

@@ -3,18 +3,22 @@ import numpy as np
 import pytest
 
 
-def test_decoder_analyses_on_the_tiny_model(tiny_motion, tiny_corpus):
+def test_decoder_analyses_on_the_tiny_model(tiny_motion, tiny_corpus, tmp_path):
     from latent_model.analysis import decoder_eval
 
     transfer, _ = tiny_motion
     c = tiny_corpus
     test = c.split_indices("test")
     m = decoder_eval.evaluate_decoder(transfer, c, test)
-    # the characters shared between two processes: the same metrics
-    two = decoder_eval.evaluate_decoder(transfer, c, test, workers=2)
-    assert list(two) == list(m)
-    for k, v in m.items():
-        assert two[k] == (pytest.approx(v, rel=1e-6, abs=1e-9) if isinstance(v, float) else v), k
+    # the characters shared between two processes, their surface features kept on disk (written, then read back):
+    # the same metrics
+    two = decoder_eval.evaluate_decoder(transfer, c, test, workers=2, surface_cache=tmp_path)
+    assert len(list(tmp_path.glob("*.npz"))) == len(test)
+    again = decoder_eval.evaluate_decoder(transfer, c, test, surface_cache=tmp_path)
+    for other in (two, again):
+        assert list(other) == list(m)
+        for k, v in m.items():
+            assert other[k] == (pytest.approx(v, rel=1e-6, abs=1e-9) if isinstance(v, float) else v), k
     rests = {c.identities[i].rest for i in test}
     assert rests == {"bind", "tpose"}
     for r in rests:

@@ -625,3 +625,29 @@ def test_source_to_combo_training_pairs_start_from_the_posed_component(tiny_corp
     k = next(n for n, p in enumerate(posed.pairs) if np.array_equal(row["mu_src"], posed.mu[p[1]]))
     src = posed.sources[posed.pairs[k][1]][0]
     assert {tuple(x) for x in row["v_src"]} <= {tuple(x) for x in src}  # its own posed source's vertices
+
+
+def test_surface_features_of_a_corpus_state_are_kept_and_read_back(tiny_corpus, tmp_path):
+    """`surface_cache.state_features`: computed once and written under the corpus digest, VERSION and state; read back
+    equal; an unreadable file is computed again and replaced; no directory: computed, nothing written."""
+    from latent_model import surface_cache
+    from latent_model.surface import VERSION, surface_features
+
+    c = tiny_corpus
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    fresh = surface_features(c.vertices(s), c.faces)
+    path = surface_cache.features_path(tmp_path, c, s)
+    assert f"_v{VERSION}_s{s}" in path.name and c.manifest["config_digest"] in path.name
+    first = surface_cache.state_features(c, s, tmp_path)
+    assert path.exists()
+    path_time = path.stat().st_mtime_ns
+    again = surface_cache.state_features(c, s, tmp_path)
+    assert path.stat().st_mtime_ns == path_time  # read, not rewritten
+    for sf in (first, again):
+        for k in ("coords", "frames", "medial"):
+            np.testing.assert_array_equal(getattr(sf, k), getattr(fresh, k))
+    path.write_bytes(b"half a file")
+    np.testing.assert_array_equal(surface_cache.state_features(c, s, tmp_path).medial, fresh.medial)
+    assert surface_cache.load_features(path) is not None
+    np.testing.assert_array_equal(surface_cache.state_features(c, s, None).coords, fresh.coords)
+    assert len(list(tmp_path.iterdir())) == 1

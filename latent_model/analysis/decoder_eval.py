@@ -11,6 +11,7 @@ Flat metrics `decoder.<analysis>....` for metrics.json; `markdown(m)` renders th
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -19,6 +20,7 @@ from latent_model.analysis.metrics import edge_strain, mesh_errors
 from latent_model.analysis.parallel import map_characters
 from latent_model.corpus.poses import JointRotation, PoseConfig
 from latent_model.corpus.store import Corpus
+from latent_model.surface_cache import state_features
 from latent_model.types import FINAL
 
 BROAD = ("elbowBentLf", "elbowBentRt", "kneeBentLf", "kneeBentRt", "clavicleDownwardLf", "shoulderRaiseLf",
@@ -30,10 +32,11 @@ HALF_ELBOW = PoseConfig("elbow23.5Lf", "body", joints=(JointRotation("lowerarm01
 
 
 class Characters:
-    """Prepared meshes (Transfer.prepare, latent from the corpus's stored samples) of corpus characters."""
+    """Prepared meshes (Transfer.prepare, latent from the corpus's stored samples) of corpus characters; their
+    surface features kept in `surface_cache` when given (`surface_cache.state_features`)."""
 
-    def __init__(self, transfer, corpus: Corpus) -> None:
-        self.t, self.c = transfer, corpus
+    def __init__(self, transfer, corpus: Corpus, surface_cache: Path | None = None) -> None:
+        self.t, self.c, self.surface_cache = transfer, corpus, surface_cache
         self._m: dict[int, object] = {}
 
     def neutral(self, i: int):
@@ -42,7 +45,9 @@ class Characters:
         if i not in self._m:
             s = self.c.state(i, None, "neutral")
             mu = encode_states(self.t.model, self.c, [s], self.t.device)[0]
-            self._m[i] = self.t.prepare(self.c.vertices(s), self.c.faces, sdf_faces=self.c.body_faces, mu=mu)
+            surface = None if self.surface_cache is None else state_features(self.c, s, self.surface_cache)
+            self._m[i] = self.t.prepare(self.c.vertices(s), self.c.faces, sdf_faces=self.c.body_faces, mu=mu,
+                                        surface=surface)
         return self._m[i]
 
     def truth(self, i: int, pose: str) -> np.ndarray:
@@ -232,9 +237,9 @@ def _character(transfer, corpus: Corpus, shared: tuple, item: tuple) -> dict:
     """Every analysis of one test character (the bind ones: also blends, magnitudes, example pairs, scaled)."""
     from latent_model.corpus.build import generator
 
-    poses, blends, magnitudes = shared
+    poses, blends, magnitudes, surface_cache = shared
     i, bind, examples = item  # examples: [(name, delta, truth)] to judge on this character
-    chars = Characters(transfer, corpus)
+    chars = Characters(transfer, corpus, surface_cache)
     out: dict = {"rest": _rest_rows(transfer, chars, i, poses)}
     if bind:
         out["blend"] = {ab: _blend_row(transfer, chars, i, *ab) for ab in blends}
@@ -246,9 +251,10 @@ def _character(transfer, corpus: Corpus, shared: tuple, item: tuple) -> dict:
 
 
 def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None,
-                     workers: int = 1) -> dict:
+                     workers: int = 1, surface_cache: Path | None = None) -> dict:
     """Every analysis above on the test characters `ids` (rests: all of them; the others: those in bind).
-    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics)."""
+    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics); `surface_cache`: where
+    the characters' surface features are kept (None: computed)."""
     from latent_model.corpus.build import generator
 
     chars = Characters(transfer, corpus)
@@ -259,7 +265,8 @@ def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[st
                              if i in bind[1:]]) for i in ids]
     say(f"decoder: broad poses in every rest ({len(ids)} characters), blends, magnitudes, "
         f"{len(pairs)} example pairs, out-of-distribution check")
-    parts = map_characters(_character, items, transfer, workers, corpus, (_broad(chars), _blends(chars), magnitudes))
+    parts = map_characters(_character, items, transfer, workers, corpus,
+                           (_broad(chars), _blends(chars), magnitudes, surface_cache))
     by_rest: dict[str, list[dict]] = {}
     for i, part in zip(ids, parts):
         by_rest.setdefault(corpus.identities[i].rest, []).append(part["rest"])

@@ -43,8 +43,9 @@ def add_arguments(p) -> None:
     p.add_argument("--corpus", help="corpus directory (default: the checkpoint preset's)")
     p.add_argument("--out", required=True, help="report directory (report.md, metrics.json, *.png)")
     p.add_argument("--transfer-ids", type=int, default=0, help="held-out identities in the mesh analysis (0 = all)")
-    p.add_argument("--fresh-baselines", action="store_true",
-                   help="recompute the no-learning baselines (default: kept per corpus in $LRR_DATA/cache/baselines)")
+    p.add_argument("--fresh-caches", "--fresh-baselines", dest="fresh_caches", action="store_true",
+                   help="recompute what depends on the corpus alone and is kept in $LRR_DATA/cache: the no-learning "
+                        "baselines (cache/baselines) and the evaluated meshes' surface features (cache/surface)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes sharing each analysis' characters (default: up to 2, one per core)")
     p.add_argument("--detail", help="local detail file (default: detail.safetensors beside the checkpoint, if any)")
@@ -74,7 +75,8 @@ def run_cli(args) -> None:
         return
     out = evaluate(ckpt, bank, Path(args.corpus) if args.corpus else None, Path(args.out),
                    transfer_ids=args.transfer_ids, progress=not args.quiet,
-                   baseline_cache=None if args.fresh_baselines else data_root() / "cache" / "baselines",
+                   baseline_cache=None if args.fresh_caches else data_root() / "cache" / "baselines",
+                   surface_cache=None if args.fresh_caches else data_root() / "cache" / "surface",
                    workers=args.workers, detail=Path(args.detail) if args.detail else None,
                    correctives=Path(args.correctives) if args.correctives else None)
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
@@ -229,9 +231,10 @@ def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, d
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
              progress: bool = True, baseline_cache: Path | None = None, workers: int | None = None,
-             detail: Path | None = None, correctives: Path | None = None) -> Path:
+             detail: Path | None = None, correctives: Path | None = None, surface_cache: Path | None = None) -> Path:
     """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
-    keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time).
+    keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time);
+    `surface_cache` the same for the surface features of the evaluated corpus meshes (`surface_cache.py`).
     `workers`: processes sharing each analysis' characters (None: one per core, at most 2). `detail`: the
     local detail file (None: the checkpoint's `detail.safetensors` if there is one), in every prediction;
     `correctives` the same for the corrective fields."""
@@ -293,7 +296,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
     tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress,
-                                     workers=resolve_workers(workers, len(ids)))
+                                     workers=resolve_workers(workers, len(ids)), surface_cache=surface_cache)
     names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields",
              "correctives": "corrective fields"}
     tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
@@ -301,7 +304,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     t = time.perf_counter()
     persons = {corpus.identities[i].person_id for i in ids}
     held = [i for i in test if corpus.identities[i].person_id in persons]
-    tm.update(evaluate_decoder(transfer, corpus, held, say, resolve_workers(workers, len(held))))
+    tm.update(evaluate_decoder(transfer, corpus, held, say, resolve_workers(workers, len(held)), surface_cache))
     timings["decoder_s"] = time.perf_counter() - t
     if transfer.detail is not None:
         from latent_model.analysis.detail_eval import evaluate_detail

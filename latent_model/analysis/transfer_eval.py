@@ -11,6 +11,7 @@ own mesh has no such correspondence, the learned model needs none.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -22,6 +23,7 @@ from latent_model.types import PAIR_KINDS
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.sdf import vertex_normals
 from latent_model.corpus.store import Corpus
+from latent_model.surface_cache import state_features
 
 # mean/nearest/oracle: the Transfer API's output (noise-gated); *_raw: the vertex decoder's own output
 STRATEGIES = ("mean", "nearest", "oracle", "mean_raw", "nearest_raw", "oracle_raw", "no_motion", "offset_nearest",
@@ -52,12 +54,15 @@ def nearest_training_identity(corpus: Corpus, train: list[int]) -> Callable[[int
 
 def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str, ...] = PAIR_KINDS,
                       example_identity: int | None = None, progress: bool = True,
-                      poses: tuple[str, ...] | None = None, workers: int = 1) -> tuple[dict, dict]:
+                      poses: tuple[str, ...] | None = None, workers: int = 1,
+                      surface_cache: Path | None = None) -> tuple[dict, dict]:
     """(flat metrics `transfer.<kind>.<pose>.<strategy>.<metric>` + group means, examples for
     figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity).
     `poses`: the target poses to evaluate (default: every corpus pose). `workers` > 1: the identities are shared
     among that many processes of one thread each (most of the work is single-threaded numpy); the metrics are
-    those of one process up to float rounding (each pair is the same computation)."""
+    those of one process up to float rounding (each pair is the same computation). `surface_cache`: a directory
+    keeping the surface features of the sources the motion decoder reads (`surface_cache.state_features`; they
+    depend on the meshes alone: half the work of a first evaluation, read back by the next; None: computed)."""
     from latent_model.encoding import encode_sample_sets
 
     # offsets copy only within a rest configuration (another rest's offsets start from other positions): the
@@ -82,7 +87,7 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
         s, t = pairs[0].source, pairs[0].target
         mean_offsets[key] = np.mean(np.stack([corpus.vertices(corpus.state(j, *t)) - corpus.vertices(corpus.state(j, *s))
                                               for j in train]), axis=0)
-    shared = (mu_of_row, mean_offsets, near, example_identity)
+    shared = (mu_of_row, mean_offsets, near, example_identity, surface_cache)
     jobs = [{k: [p for p in ps if p.identity == i] for k, ps in pairs_by_key.items()} for i in ids]
     results = map_characters(_character, jobs, transfer, workers, corpus, shared, "transfer", progress)
     # rows in the one-process order: key by key, identity by identity
@@ -120,7 +125,8 @@ def _character(transfer, corpus: Corpus, shared: tuple, job: dict) -> tuple[dict
 
 
 def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str], list[Pair]], mu_of_row: dict,
-                    mean_offsets: dict, near: dict[int, int], example_identity: int) -> tuple[dict, dict, dict]:
+                    mean_offsets: dict, near: dict[int, int], example_identity: int,
+                    surface_cache: Path | None = None) -> tuple[dict, dict, dict]:
     """The pairs of one identity: ({(kind, pose): {(kind, pose key, strategy): [metrics]}}, the same of gates,
     examples)."""
     faces = corpus.faces
@@ -144,9 +150,11 @@ def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str]
             if row not in prepared and row not in neutrals:
                 if len(prepared) > 64:  # posed sources: each is used by a few pairs only
                     prepared.clear()
-                # the neutral meshes stay: their surface features (decoder v2) take ~0.75 s each
+                # the neutral meshes stay: their surface features (decoder v2) take ~0.45 s each
+                surface = state_features(corpus, s, surface_cache) \
+                    if surface_cache is not None and transfer.predicts_with(kind) == "motion" else None
                 (neutrals if neutral else prepared)[row] = transfer.prepare(v_src, faces, sdf_faces=corpus.body_faces,
-                                                                            mu=latent(s))
+                                                                            mu=latent(s), surface=surface)
             mesh = neutrals[row] if row in neutrals else prepared[row]
             outs = {
                 "mean": transfer.predict_detail(mesh, bkey, "mean_pose_delta", kind=kind),

@@ -16,14 +16,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from latent_model.atomic import atomic_write
 from latent_model.config import MotionDecoderConfig
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
 from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
-from latent_model.surface import VERSION as SURFACE_VERSION
-from latent_model.surface import SurfaceFeatures, surface_features
+from latent_model.surface import SurfaceFeatures
+from latent_model.surface_cache import state_features
 from latent_model.train.combo_augment import ExtraPoses, extra_combinations
 from latent_model.train.posed_sources import KIND, PosedSources, posed_sources
 from latent_model.train.rest_augment import ExtraCharacters, extra_characters
@@ -42,17 +41,7 @@ class CharacterCache:
     def get(self, i: int) -> tuple[np.ndarray, np.ndarray, SurfaceFeatures]:
         if i not in self._f:
             s = self.c.state(i, None, "neutral")
-            v = self.c.vertices(s)
-            path = None if self.dir is None else self.dir / f"{self.c.manifest['config_digest']}_v{SURFACE_VERSION}_{i}.npz"
-            if path is not None and path.exists():
-                z = np.load(path)
-                sf = SurfaceFeatures(z["coords"], z["frames"], z["medial"], {})
-            else:
-                sf = surface_features(v, self.c.faces)
-                if path is not None:
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    atomic_write(path, lambda tmp: np.savez(tmp, coords=sf.coords, frames=sf.frames, medial=sf.medial))
-            self._f[i] = (v, self.c.normals(s), sf)
+            self._f[i] = (self.c.vertices(s), self.c.normals(s), state_features(self.c, s, self.dir))
         return self._f[i]
 
     def add(self, extra: "ExtraCharacters") -> None:

@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from latent_model.atomic import atomic_write
 from latent_model.corpus.pairs import enumerate_pairs
 from latent_model.corpus.store import Corpus
-from latent_model.surface import VERSION as SURFACE_VERSION
 from latent_model.surface import SurfaceFeatures, surface_features
+from latent_model.surface_cache import features_path, load_features, save_features
 
 KIND = "source_to_combo"
 
@@ -76,18 +75,17 @@ def posed_sources(corpus: Corpus, train_ids: list[int], poses: tuple[str, ...], 
     sources: dict[int, tuple[np.ndarray, np.ndarray, SurfaceFeatures]] = {}
     todo = []
     for s in need:
-        path = None if cache_dir is None else Path(cache_dir) / f"{corpus.manifest['config_digest']}_v{SURFACE_VERSION}_s{s}.npz"
-        if path is not None and path.exists():
-            z = np.load(path)
-            sources[s] = (corpus.vertices(s), corpus.normals(s), SurfaceFeatures(z["coords"], z["frames"], z["medial"], {}))
+        path = None if cache_dir is None else features_path(cache_dir, corpus, s)
+        sf = None if path is None else load_features(path)
+        if sf is not None:
+            sources[s] = (corpus.vertices(s), corpus.normals(s), sf)
         else:
             todo.append((s, path))
     for (s, path), (coords, frames, medial) in zip(todo, _map(_features, [(corpus.vertices(s), corpus.faces)
                                                                           for s, _ in todo], workers)):
         sources[s] = (corpus.vertices(s), corpus.normals(s), SurfaceFeatures(coords, frames, medial, {}))
         if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write(path, lambda tmp: np.savez(tmp, coords=coords, frames=frames, medial=medial))
+            save_features(path, sources[s][2])
     log(f"  posed sources: {len(pairs)} source_to_combo pairs of {len(chosen)} characters, {len(need)} sources "
         f"({len(todo)} surface features computed, {time.time() - t0:.0f} s)")
     return PosedSources(corpus, pairs, sources, mu, deltas)
