@@ -5,8 +5,9 @@
     python bench/combo_detail.py [--split val] [--per-rest 2]
 
 Reads each key three ways and prints explained motion / leak (mm) per region group, strategy and rest:
-- ``added`` (what ships, `Transfer._detail_parts`): each added face pose's own region deltas;
-- ``added_fingers``: the same with added finger poses read too (their fields summed);
+- ``added`` (what ships, `Transfer._detail_parts`): each added face or finger pose's own region deltas (a finger's
+  knuckle turns compose, `RegionFields.chains`);
+- ``added_faces``: added face poses only (finger additions: no motion, as shipped before the turns composed);
 - ``difference``: the combination's region deltas minus the component's, read as one delta.
 With no detail the keys predict no motion (explained 0).
 """
@@ -43,15 +44,16 @@ def main() -> None:
             if all(detail_regions_of(c) for c in get_pose(p.pose).components if c != p.component)]
     shipped = Transfer._detail_parts
 
-    def with_fingers(self, key, kind, person):
+    def faces_only(self, key, kind, person):
         combo, comp = split_bank_key(kind, key)
-        return [(self.detail.pose_deltas(c, person), 1.0) for c in get_pose(combo).components if c != comp]
+        return [(self.detail.pose_deltas(c, person), 1.0) for c in get_pose(combo).components
+                if c != comp and detail_regions_of(c) == ("head",)]
 
     def difference(self, key, kind, person):
         combo, comp = split_bank_key(kind, key)
         return [(self.detail.pose_deltas(combo, person), 1.0), (self.detail.pose_deltas(comp, person), -1.0)]
 
-    variants = {"added": shipped, "added_fingers": with_fingers, "difference": difference}
+    variants = {"added": shipped, "added_faces": faces_only, "difference": difference}
     gen = generator()
     faces = np.asarray(gen.faces, np.int64)
     rows: dict[tuple, list] = {}

@@ -15,7 +15,7 @@ metadata (config, persons, noise floors, sampling, each region's field poses).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +23,7 @@ import torch
 
 from latent_model.atomic import atomic_write
 from latent_model.detail_fields import Placement, RegionFields
-from latent_model.detail_poses import detail_regions_of
+from latent_model.detail_poses import detail_regions_of, finger_chains
 from latent_model.nn.local_detail import LocalDetail, LocalDetailConfig
 from latent_model.regions import REGION_KIND, RegionFrame, RegionSampling, region_frames, sample_region
 
@@ -60,7 +60,8 @@ class LocalDetailModel:
     def __init__(self, net: LocalDetail, bank: DetailBank, fields: dict[str, RegionFields]) -> None:
         self.net = net.eval()
         self.bank = bank
-        self.fields = fields
+        # a finger's knuckle turns compose (`RegionFields.chains`): known from the fields' poses, not stored
+        self.fields = {r: replace(f, chains=finger_chains(f.poses)) for r, f in fields.items()}
         # {region: (P, Z)} the mean delta of each field's pose: what a delta is read against
         self.basis = {r: np.stack([bank.mean(p, r) for p in f.poses]) for r, f in fields.items()}
 

@@ -42,3 +42,20 @@ def region_poses(poses: tuple[str, ...], kind: str) -> dict[str, tuple[str, ...]
     bending = {"head": ("neckTurnLf", "neckTurnRt", "neckBendFw"), "hand_left": ("wristFlexLf",),
                "hand_right": ("wristFlexRt",)}
     return {r: tuple(p for p in poses if r in detail_regions_of(p) or p in bending[r]) for r in regions}
+
+
+def finger_chains(poses: list[str] | tuple[str, ...]) -> tuple[tuple[int, ...], ...]:
+    """Indices into `poses` of the knuckle turns of each finger, proximal first (from the rig's bones
+    `finger<n>-<level>.<side>`): the joints whose turns compose rather than add (`detail_fields.compose_turns`).
+    Poses turning one finger bone each; anything else belongs to no chain."""
+    import re
+
+    fingers: dict[tuple[str, str], list[tuple[int, int]]] = {}
+    for i, name in enumerate(poses):
+        p = get_pose(name)
+        if p.components or len(p.joints) != 1:
+            continue
+        m = re.fullmatch(r"(finger\d+)-(\d+)\.([LR])", p.joints[0].bone)
+        if m:
+            fingers.setdefault((m.group(1), m.group(3)), []).append((int(m.group(2)), i))
+    return tuple(tuple(i for _, i in sorted(levels)) for _, levels in sorted(fingers.items()))

@@ -345,10 +345,9 @@ class Transfer:
                 parts += [(part, blend * w) for part, w in self._detail_parts(pose_b, kind, person)]
             raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude)
         if kind == "source_to_combo" and not all(body) and not any(d for (d, _), _ in parts):
-            note = ("what the combination adds to its posed part is " + ("finger poses: the body decoder does not move "
-                    "them, and the local detail stage adds face poses only (a fist's knuckles chain; its fields add)"
-                    if self.detail is not None else "face or finger poses: the body decoder does not move them, and "
-                    "this model has no local detail stage"))
+            note = ("what the combination adds to its posed part is face or finger poses: the body decoder does not move "
+                    "them, and " + ("this model has no local detail stage" if self.detail is None
+                                    else "the local detail stage holds none of them"))
         # once per mesh: the distance to 27k training states would otherwise run at every slider move
         novelty = self.novelty(mesh, kind) if "mu" in mesh.derived() else None
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix, note)
@@ -395,7 +394,7 @@ class Transfer:
         a gate, moved whole cheeks and hands: puffRt explained 0.34 alone, -0.66 with it); for source_to_combo, when
         what the combination adds to its posed component is face and finger poses alone (decoder v2 trains on body
         combinations; its ungated reading of these 43 keys on the validation characters explained mean -2.2, nearest
-        -22.7), with or without the detail stage (which adds the face poses among them, `_detail_parts`)."""
+        -22.7), with or without the detail stage (which adds them, `_detail_parts`)."""
         if pose is None:
             return False
         if kind == "source_to_combo":
@@ -409,15 +408,25 @@ class Transfer:
 
     def _detail_parts(self, key: str, kind: PairKind, person: str | None) -> list[tuple[tuple[dict, int], float]]:
         """[(({region: delta}, averaged), weight)] the local detail stage adds for a bank key: a pose's own region
-        deltas (`neutral_to_pose`); for `source_to_combo`, what the combination adds to its posed component: each
-        added face pose's deltas (the rig adds face shapes; the component's own detail is in the source). Added
-        finger poses get none: a fist's knuckles chain along each finger while the fields add, and on the validation
-        characters the fist from a knuckle or a bent elbow read so explained less than no motion (mean -0.02 to
-        -0.30 over three rests; face additions 0.51-0.55)."""
+        deltas (`neutral_to_pose`), except that a combination's finger poses are each read from its own deltas: in
+        the hand's code a fist's delta reads as two knuckles (A02 0.58 + D02 1.20), its twelve knuckles read one by
+        one compose into the fist (`RegionFields.chains`; validation: explained 0.13 -> 0.86 mean, 0.18 -> 0.81
+        nearest). For `source_to_combo`, what the combination adds to its posed component: each added face or
+        finger pose's deltas (the rig adds face shapes and turns knuckles; the component's own detail is in the
+        source). Validation: a fist added to a bent elbow 0.89 / 0.81 (mean / nearest), to one bent knuckle
+        0.51-0.79 (a base knuckle's source the least: the others turn about its unbent joints), face additions
+        0.51-0.55 / 0.30-0.37."""
         if kind != "source_to_combo":
-            return [(self.detail.pose_deltas(key, person), 1.0)]
+            pose = get_pose(key)
+            fingers = [c for c in pose.components if get_pose(c).group == "finger"]
+            if not fingers:
+                return [(self.detail.pose_deltas(key, person), 1.0)]
+            own, n = self.detail.pose_deltas(key, person)
+            hands = {r for c in fingers for r in detail_regions_of(c)}
+            rest = {r: d for r, d in own.items() if r not in hands}
+            return ([((rest, n), 1.0)] if rest else []) + [(self.detail.pose_deltas(c, person), 1.0) for c in fingers]
         combo, component = split_bank_key(kind, key)
-        added = [c for c in get_pose(combo).components if c != component and detail_regions_of(c) == ("head",)]
+        added = [c for c in get_pose(combo).components if c != component and detail_regions_of(c)]
         return [(self.detail.pose_deltas(c, person), 1.0) for c in added]
 
     def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float

@@ -52,3 +52,47 @@ def test_a_delta_reads_as_its_mix_of_poses_above_the_floor():
     assert w[1] == 0.0 and w[0] > 0 and w[2] == pytest.approx(1.0)
     # a delta all under the floor still reads as its best pose (the noise gate, not the read, judges it)
     assert RegionFields.read(0.05 * basis[0], basis, 0.1) == pytest.approx([0.05, 0.0, 0.0])
+
+
+def _finger(n: int = 600) -> np.ndarray:
+    """Points of a thin finger along x in [0, 3] (joints at x = 1 and 2)."""
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 2 * np.pi, n)
+    return np.c_[rng.uniform(0.0, 3.0, n), 0.1 * np.cos(a), 0.1 * np.sin(a)]
+
+
+def _turn(x: np.ndarray, joint: float, degrees: float) -> np.ndarray:
+    """x with the part beyond `joint` turned about the z axis through (joint, 0, 0)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_euler("z", degrees, degrees=True).as_matrix()
+    pivot = np.array([joint, 0.0, 0.0])
+    out = x.copy()
+    beyond = x[:, 0] > joint
+    out[beyond] = (x[beyond] - pivot) @ r.T + pivot
+    return out
+
+
+def test_a_fingers_knuckle_turns_compose_as_a_skeletons_and_one_turn_is_its_field():
+    from latent_model.detail_fields import fit_turn
+
+    x = _finger()
+    base, tip = _turn(x, 1.0, 40.0) - x, _turn(x, 2.0, 50.0) - x
+    fields = RegionFields(x, ["base", "tip"], np.stack([base, tip]), chains=((0, 1),))
+    t = fit_turn(x, base)
+    assert np.allclose(t.pivot[:2], [1.0, 0.0], atol=1e-6) and np.degrees(np.linalg.norm(t.rotvec)) == pytest.approx(40.0)
+    # both at once: the tip turns about its joint where the base's turn carried it (forward kinematics)
+    truth = np.where((x[:, 0] > 1.0)[:, None], (_turn(_turn(x, 2.0, 50.0), 1.0, 40.0)), x) - x
+    assert np.abs(fields.mixed(np.array([1.0, 1.0])) - truth).max() < 1e-9
+    summed = RegionFields(x, ["base", "tip"], np.stack([base, tip])).mixed(np.array([1.0, 1.0]))
+    assert np.allclose(summed, base + tip) and np.abs(summed - truth).max() > 0.3  # added, the tip lands elsewhere
+    # one turn alone is its field; half of it turns half the angle (not half the displacement)
+    assert np.abs(fields.mixed(np.array([1.0, 0.0])) - base).max() < 1e-12
+    assert np.abs(fields.mixed(np.array([0.5, 0.0])) - (_turn(x, 1.0, 20.0) - x)).max() < 1e-9
+
+
+def test_finger_chains_group_each_fingers_knuckles_base_first():
+    from latent_model.detail_poses import finger_chains
+
+    poses = ["browDwLf", "fingerKnuckleA02Lf", "fingerKnuckleA01Lf", "fingerKnuckleB01Lf", "fistLf", "fingerKnuckleA01Rt"]
+    assert finger_chains(poses) == ((2, 1), (5,), (3,))

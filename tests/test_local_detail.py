@@ -182,7 +182,7 @@ def test_a_pose_made_of_face_parts_is_the_stages_alone(with_detail, tiny_motion,
 
 def test_a_combination_adding_face_poses_to_its_posed_part_moves_them_by_the_stage(with_detail, tiny_corpus):
     """source_to_combo: what browDwLf+browDwRt adds to its posed browDwRt is browDwLf's local detail (the body decoder
-    moves none of it); what a fist adds to a bent elbow is not the stage's (chained knuckles), and the output says so.
+    moves none of it); what a fist adds to a bent elbow is its knuckles' local detail, on the left hand alone.
     (The tiny corpus has no such keys: they are made here of a body key's deltas, which the body decoder ignores.)"""
     from latent_model.detail import LocalDetailModel
 
@@ -204,4 +204,31 @@ def test_a_combination_adding_face_poses_to_its_posed_part_moves_them_by_the_sta
     assert moved[head].max() > 1e-4 and moved[~head].max() == 0.0
     assert np.array_equal(out.vertices, face.predict(mesh, "browDwLf"))  # the added pose's own local detail
     fist = face.predict_detail(mesh, "elbowBentLf+fistLf<elbowBentLf", kind="source_to_combo")
-    assert np.array_equal(fist.vertices, mesh.vertices) and fist.detail == {} and "finger poses" in fist.note
+    hand = np.zeros(len(mesh.vertices), bool)
+    hand[face.regions(mesh).frames["hand_left"].vertices] = True
+    moved = np.linalg.norm(fist.vertices - mesh.vertices, axis=1)
+    assert fist.gate == 0.0 and fist.note is None and "hand_left" in fist.detail
+    assert moved[hand].max() > 1e-4 and moved[~hand].max() == 0.0
+    # each added knuckle read as itself (the tiny stage holds one of the twelve: fingerKnuckleB02Lf)
+    assert np.array_equal(fist.vertices, face.predict(mesh, "fingerKnuckleB02Lf"))
+
+
+def test_a_fist_reads_its_knuckles_one_by_one(with_detail, tiny_corpus):
+    """neutral_to_pose of a combination of finger poses: the hand moves by each knuckle's own region delta (their
+    turns compose along each finger), not by the fist's, which the hand's code reads as other knuckles; the body
+    decoder adds nothing. (Made here: the tiny corpus has no fist; its stage holds one knuckle.)"""
+    from latent_model.detail import LocalDetailModel
+
+    t, d = with_detail, with_detail.detail
+    knuckle = ("fingerKnuckleB02Lf", "hand_left")
+    deltas = {**d.bank.deltas, ("fistLf", "hand_left"): 3.0 * d.bank.deltas[knuckle][:, ::-1].copy()}
+    bank = dataclasses.replace(d.bank, deltas=deltas, noise={k: 1e-3 * v for k, v in d.bank.noise.items()})
+    fist = type(t)(t.model, dataclasses.replace(t.bank, deltas={
+        **t.bank.deltas, ("neutral_to_pose", "fistLf"): t.bank.deltas[("neutral_to_pose", "fingerKnuckleB02Lf")]}),
+        t.sdf_k, detail=LocalDetailModel(d.net, bank, d.fields))
+    _, mesh = _target(tiny_corpus, fist)
+    out = fist.predict_detail(mesh, "fistLf")
+    assert out.gate == 0.0 and out.detail_mix["hand_left"] == pytest.approx({"fingerKnuckleB02Lf": 1.0})
+    assert np.array_equal(out.vertices, fist.predict(mesh, "fingerKnuckleB02Lf"))
+    # the fist's own delta would have read otherwise
+    assert fist.detail.mix("hand_left", fist.detail.pose_deltas("fistLf")[0]["hand_left"]) != out.detail_mix["hand_left"]
