@@ -89,8 +89,8 @@ def fit_turn(points: np.ndarray, displacement: np.ndarray, core: float = TURN_CO
     length = np.linalg.norm(d, axis=1)
     if length.max() <= 0:
         return Turn(np.zeros(3), x.mean(axis=0), np.zeros(len(x)), d)
-    a = x[length >= core * length.max()]
-    b = a + d[length >= core * length.max()]
+    outer = length >= core * length.max()
+    a, b = x[outer], x[outer] + d[outer]
     ca, cb = a.mean(axis=0), b.mean(axis=0)
     u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
     r = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
