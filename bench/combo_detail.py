@@ -2,11 +2,13 @@
 (a brow from the other brow, a fist from a knuckle or a bent elbow), on held-out characters made through the rig
 (no corpus needed), through the Transfer API.
 
-    python bench/combo_detail.py [--split val] [--per-rest 2]
+    python bench/combo_detail.py [--split val] [--per-rest 2] [--variants added,added_unheld,...]
 
-Reads each key three ways and prints explained motion / leak (mm) per region group, strategy and rest:
+Reads each key these ways and prints explained motion / leak (mm) per region group, strategy and rest:
 - ``added`` (what ships, `Transfer._detail_parts`): each added face or finger pose's own region deltas (a finger's
-  knuckle turns compose, `RegionFields.chains`);
+  knuckle turns compose, `RegionFields.chains`), added to the poses the source stands in (`Transfer._held`: the
+  source placed on the anchor posed as it is);
+- ``added_unheld``: the same, the source placed on the unposed anchor and the additions' fields alone;
 - ``added_faces``: added face poses only (finger additions: no motion, as shipped before the turns composed);
 - ``difference``: the combination's region deltas minus the component's, read as one delta.
 With no detail the keys predict no motion (explained 0).
@@ -14,6 +16,7 @@ With no detail the keys predict no motion (explained 0).
 from __future__ import annotations
 
 import argparse
+import re
 import time
 from pathlib import Path
 
@@ -22,6 +25,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--split", default="val", choices=("val", "test"))
     ap.add_argument("--per-rest", type=int, default=2, help="characters per rest configuration")
+    ap.add_argument("--variants", default="added,added_unheld,added_faces,difference")
     args = ap.parse_args()
     import numpy as np
     import torch
@@ -42,7 +46,7 @@ def main() -> None:
     transfer, preset = _detail_transfer(Path(paths.checkpoint), Path(paths.bank), None)
     keys = [p for p in enumerate_pairs([0], tuple(preset.corpus.pose_names()), ("source_to_combo",))
             if all(detail_regions_of(c) for c in get_pose(p.pose).components if c != p.component)]
-    shipped = Transfer._detail_parts
+    shipped, shipped_held = Transfer._detail_parts, Transfer.__dict__["_held"]  # the staticmethod itself
 
     def faces_only(self, key, kind, person):
         combo, comp = split_bank_key(kind, key)
@@ -53,7 +57,13 @@ def main() -> None:
         combo, comp = split_bank_key(kind, key)
         return [(self.detail.pose_deltas(combo, person), 1.0), (self.detail.pose_deltas(comp, person), -1.0)]
 
-    variants = {"added": shipped, "added_faces": faces_only, "difference": difference}
+    unheld = staticmethod(lambda key, kind: ())
+    variants = {"added": (shipped, shipped_held), "added_unheld": (shipped, unheld),
+                "added_faces": (faces_only, shipped_held), "difference": (difference, shipped_held)}
+    unknown = set(args.variants.split(",")) - set(variants)
+    if unknown:
+        raise SystemExit(f"--variants: unknown {sorted(unknown)}; choose from {sorted(variants)}")
+    variants = {k: variants[k] for k in args.variants.split(",")}
     gen = generator()
     faces = np.asarray(gen.faces, np.int64)
     rows: dict[tuple, list] = {}
@@ -70,8 +80,11 @@ def main() -> None:
                 truth = getattr(gen.pose(spec, p.pose, spec.rest), FINAL).astype(np.float64)
                 group = "finger" if any(detail_regions_of(c) != ("head",) for c in get_pose(p.pose).components
                                         if c != p.component) else "face"
-                for name, parts in variants.items():
-                    Transfer._detail_parts = parts
+                if group == "finger":  # by the source's bent knuckle: 1 base, 2 middle, 3 tip ("finger0": a body pose)
+                    level = re.match(r"fingerKnuckle[A-Z](\d+)", p.component)
+                    group += str(int(level.group(1))) if level else "0"
+                for name, (parts, held) in variants.items():
+                    Transfer._detail_parts, Transfer._held = parts, held
                     for strategy in ("mean_pose_delta", "nearest_identity_delta"):
                         pred = transfer.predict(mesh, p.bank_key, strategy, kind="source_to_combo")
                         e = mesh_errors(pred.astype(np.float64), truth, src)
@@ -79,7 +92,7 @@ def main() -> None:
                             (e["explained"], e["leak_mm"]))
             print(f"{spec.id} ({spec.rest}): {time.time() - t0:.0f} s", flush=True)
     finally:
-        Transfer._detail_parts = shipped
+        Transfer._detail_parts, Transfer._held = shipped, shipped_held
     print(f"{len(keys)} keys, {len(specs)} {args.split} characters")
     print("group   variant        strategy rest        explained  leak mm  worst")
     for (group, name, strategy, rest), r in sorted(rows.items()):

@@ -224,7 +224,7 @@ class TrainConfig:
     a_enc_points: int = 2048  # SDF samples fed to the encoder per state (subset of K)
     a_query_points: int = 256  # SDF decoder queries per state
     a_lr: float = 1e-3  # Phase A learning rate
-    b_steps: int = 2000  # Phase B network steps (decoder v2 predicts neutral_to_pose: 3000 before it)
+    b_steps: int = 300  # Phase B network steps (it predicts only an example pair's corrective; 2000 before)
     b_batch: int = 4  # pairs per Phase B step
     b_lr: float = 1e-3  # Phase B learning rate
     b_kinds: tuple[PairKind, ...] = PAIR_KINDS  # pair kinds Phase B draws from (uniformly)

@@ -15,7 +15,7 @@ metadata (config, persons, noise floors, sampling, each region's field poses).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -145,11 +145,12 @@ class LocalDetailModel:
         return smooth_gate(signal), signal
 
     def displacement(self, mesh: "MeshRegions", deltas: list[tuple[dict[str, np.ndarray], float]],
-                     moved: np.ndarray) -> np.ndarray:
+                     moved: np.ndarray, held: tuple[str, ...] = ()) -> np.ndarray:
         """(V, 3) world displacement to add to `moved` (the body prediction of the mesh, (V, 3)): for each region,
         the sum over `deltas` [({region: delta}, weight)] of the fields' displacement for the delta's pose mix
         (`RegionFields.read`) times its weight, in the region's frame as `moved` carries it, fading over the
-        region's edge."""
+        region's edge. `held`: the face and finger poses the mesh already stands in (a `source_to_combo` source's),
+        which the mix is added to (`MeshRegions.placement`)."""
         out = np.zeros_like(moved, dtype=np.float64)
         for r, f in mesh.frames.items():
             parts = [(d[r], w) for d, w in deltas if r in d and w != 0.0]
@@ -157,7 +158,7 @@ class LocalDetailModel:
                 continue
             floor = self.bank.noise.get(REGION_KIND[r], 0.0)
             mix = sum(w * RegionFields.read(d, self.basis[r], floor) for d, w in parts)
-            local = self.fields[r].displacement(mesh.placed[r], mix)
+            local = self.fields[r].displacement(mesh.placement(r, self.fields[r], held), mix)
             carried = f.follow(mesh.vertices, moved)
             if carried.mirrored:
                 local[:, 2] = -local[:, 2]
@@ -189,6 +190,20 @@ class MeshRegions:
     sdf_faces: np.ndarray
     seed: int
     placed: dict[str, Placement]
+
+    held_placed: dict[tuple[str, tuple[str, ...]], Placement] = field(default_factory=dict)
+
+    def placement(self, region: str, fields: RegionFields, held: tuple[str, ...] = ()) -> Placement:
+        """Where the region lies on its fields' anchor; with `held` poses of its fields, on the anchor posed so
+        (`RegionFields.place`), once per region and poses."""
+        weights = fields.weights_of(held)
+        if not weights.any():
+            return self.placed[region]
+        key = (region, tuple(sorted(held)))
+        if key not in self.held_placed:
+            f = self.frames[region]
+            self.held_placed[key] = fields.place(f.to_local(self.vertices[f.vertices]), weights)
+        return self.held_placed[key]
 
     @property
     def fade(self) -> dict[str, np.ndarray]:

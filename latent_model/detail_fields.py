@@ -13,6 +13,10 @@ of a tip knuckle, measured on a straight finger, lands in the wrong place once t
 twelve fields summed explained 0.13 on the validation characters). Each knuckle's field is therefore also kept as
 a turn about a pivot that each anchor point follows by a weight, plus what that leaves (`fit_turn`), and the
 turns of one finger compose from the tip to the base as a skeleton's do (`compose_turns`; the fist: 0.86).
+
+A source already standing in some of the region's poses (`source_to_combo`: a bent knuckle, an open jaw) is placed
+on the anchor posed the same way (`place(..., held)`), and moves by what the combination's composed turns do
+beyond that pose: a fist from a bent base knuckle turns the middle and tip joints about where they now are.
 """
 from __future__ import annotations
 
@@ -61,12 +65,14 @@ def _interpolation(points: np.ndarray, at: np.ndarray, k: int = NEIGHBOURS) -> t
 @dataclass
 class Placement:
     """A target region on the anchor: its affine map (A (3, 3), b (3,)) and interpolation weights (index, weight
-    (M, k)) of its M vertices among the anchor's points."""
+    (M, k)) of its M vertices among the anchor's points; `held` (P,): the pose weights the target already stands
+    in (it was placed on the anchor posed so), or None."""
 
     A: np.ndarray
     b: np.ndarray
     index: np.ndarray
     weight: np.ndarray
+    held: np.ndarray | None = None
 
 
 @dataclass
@@ -145,11 +151,19 @@ class RegionFields:
                 out = out + compose_turns(self.anchor, [self.turns[i] for i in chain], w[list(chain)])
         return out
 
-    def place(self, local: np.ndarray) -> Placement:
-        """Where a region's vertices (M, 3), local coordinates, lie on the anchor."""
-        A, b = affine_align(local, self.anchor)
-        index, weight = _interpolation(self.anchor, np.asarray(local, np.float64) @ A.T + b)
-        return Placement(A, b, index, weight)
+    def weights_of(self, poses: tuple[str, ...] | list[str]) -> np.ndarray:
+        """(P,) weight 1 for each of `poses` this region has a field of, 0 elsewhere."""
+        return np.array([1.0 if p in poses else 0.0 for p in self.poses])
+
+    def place(self, local: np.ndarray, held: np.ndarray | None = None) -> Placement:
+        """Where a region's vertices (M, 3), local coordinates, lie on the anchor — on the anchor moved by the pose
+        weights `held` (P,) when the region already stands in those poses (a bent finger's tip is then found where
+        the anchor's bent tip is, not on the next finger)."""
+        held = None if held is None or not np.any(held) else np.asarray(held, np.float64)
+        target = self.anchor if held is None else self.anchor + self.mixed(held)
+        A, b = affine_align(local, target)
+        index, weight = _interpolation(target, np.asarray(local, np.float64) @ A.T + b)
+        return Placement(A, b, index, weight, held)
 
     @staticmethod
     def read(delta: np.ndarray, basis: np.ndarray, floor: float) -> np.ndarray:
@@ -176,8 +190,13 @@ class RegionFields:
         return out
 
     def displacement(self, placement: Placement, weights: np.ndarray) -> np.ndarray:
-        """(M, 3) displacement of the placed region's vertices (their local coordinates) for pose weights (P,)."""
-        field = self.mixed(weights)  # (N, 3), anchor coordinates
+        """(M, 3) displacement of the placed region's vertices (their local coordinates) for pose weights (P,) added
+        to what the region holds (`Placement.held`): the composed motion of both less the held poses' own."""
+        held = placement.held
+        if held is None:
+            field = self.mixed(weights)  # (N, 3), anchor coordinates
+        else:
+            field = self.mixed(held + np.asarray(weights, np.float64)) - self.mixed(held)
         moved = (field[placement.index] * placement.weight[..., None]).sum(axis=1)
         return np.linalg.solve(placement.A, moved.T).T  # back through the affine map's linear part
 

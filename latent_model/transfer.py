@@ -227,6 +227,14 @@ class Transfer:
             return None
         return self.detail.example_deltas(self.regions(neutral), posed.vertices.astype(np.float64))
 
+    def example_corrective(self, neutral: PreparedMesh, posed: PreparedMesh) -> dict[str, float] | None:
+        """{pose: weight} an example pair's corrective (a skinned mesh -> the same with its corrective shapes) reads
+        as in the corrective fields (`CorrectiveFields.read`); None without fields or when the pair is not anny's
+        topology (the fields follow its vertices)."""
+        if self.correctives is None or self.correctives.available(neutral.vertices, neutral.faces) is not None:
+            return None
+        return self.correctives.read(neutral.vertices, posed.vertices)
+
     def regions(self, mesh: PreparedMesh):
         """The mesh's detail regions and their codes (`detail.MeshRegions`), once per mesh."""
         return mesh.cache("detail_regions", "cpu", lambda: self.detail.regions(
@@ -270,8 +278,8 @@ class Transfer:
         return len(self.bank.delta(kind, pose)[0])
 
     def predicts_with(self, kind: PairKind) -> Predictor:
-        """"correctives", "motion", "pose_fields" or "network": what predicts this pair kind (from a pose; an
-        example pair's corrective goes to the network: the fields are read by pose)."""
+        """"correctives", "motion", "pose_fields" or "network": what predicts this pair kind (an example pair's
+        corrective too: the fields read it as their poses, `example_corrective`)."""
         check_pair_kind(kind)
         if self.correctives is not None and kind == CORRECTIVE_KIND:
             return "correctives"
@@ -282,27 +290,32 @@ class Transfer:
     def predict(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta", magnitude: float = 1.0,
                 kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
                 oracle_target_mu: np.ndarray | None = None, oracle_target_mu_b: np.ndarray | None = None,
-                delta: np.ndarray | None = None, detail_delta: dict[str, np.ndarray] | None = None) -> np.ndarray:
+                delta: np.ndarray | None = None, detail_delta: dict[str, np.ndarray] | None = None,
+                corrective_mix: dict[str, float] | None = None) -> np.ndarray:
         """(V, 3) float32 predicted vertices (`predict_detail(...).vertices`)."""
         return self.predict_detail(mesh, pose, strategy, magnitude, kind, pose_b, blend,
-                                   oracle_target_mu, oracle_target_mu_b, delta, detail_delta).vertices
+                                   oracle_target_mu, oracle_target_mu_b, delta, detail_delta, corrective_mix).vertices
 
     @torch.no_grad()
     def predict_detail(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta",
                        magnitude: float = 1.0, kind: PairKind = "neutral_to_pose", pose_b: str | None = None,
                        blend: float = 0.0, oracle_target_mu: np.ndarray | None = None,
                        oracle_target_mu_b: np.ndarray | None = None, delta: np.ndarray | None = None,
-                       detail_delta: dict[str, np.ndarray] | None = None) -> TransferOutput:
+                       detail_delta: dict[str, np.ndarray] | None = None,
+                       corrective_mix: dict[str, float] | None = None) -> TransferOutput:
         """The prediction with its parts. `blend` in [0, 1] mixes pose A's delta toward pose B's;
         `magnitude` in [0, 2] scales r_Δ (0 = no motion requested: the source exactly, 1 = as
         conditioned, 2 = doubled). The displacement is scaled by the noise gate of the delta.
         `delta`: pose A's raw latent delta given directly (an example pair's, `example_delta`) instead of
-        the strategy's; `pose` may then be None; `detail_delta` its region deltas (`example_detail`).
+        the strategy's; `pose` may then be None; `detail_delta` its region deltas (`example_detail`),
+        `corrective_mix` its corrective read as the corrective fields' poses (`example_corrective`; None: unread, no
+        corrective then, said so — the network's reading of a corrective's delta explained less than no motion).
         With a local detail stage, `neutral_to_pose` adds what a face or finger pose does inside the head and
         hands, `source_to_combo` what the combination's added face poses do (`_detail_parts`, `_add_detail`)."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
-        if delta is None and self.predicts_with(kind) == "correctives":
-            return self._corrective_prediction(mesh, pose, strategy, magnitude, pose_b, blend)
+        if self.predicts_with(kind) == "correctives":
+            return self._corrective_prediction(mesh, pose, strategy, magnitude, pose_b, blend,
+                                               None if delta is None else (corrective_mix or {}))
         if delta is not None:
             d, label = np.asarray(delta, np.float32), "example"
         elif pose is None:
@@ -313,8 +326,6 @@ class Transfer:
         d_b = self.delta(mesh, pose_b, strategy, kind, oracle_target_mu_b)[0] if pose_b is not None and blend > 0 else None
         n_b = self.averaged(pose_b, strategy, kind) if d_b is not None else 1
         predictor = self.predicts_with(kind)
-        if predictor == "correctives":  # an example pair's corrective: the fields are read by pose
-            predictor = "network"
         body = (not self._local_only(None if delta is not None else pose, kind),
                 not self._local_only(pose_b if d_b is not None else None, kind))
         note = None
@@ -343,7 +354,8 @@ class Transfer:
                 parts = [(part, w_a * w) for part, w in self._detail_parts(pose, kind, person)]
             if d_b is not None:
                 parts += [(part, blend * w) for part, w in self._detail_parts(pose_b, kind, person)]
-            raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude)
+            raw, gated, detail_gates, mix = self._add_detail(mesh, raw, gated, parts, magnitude,
+                                                             self._held(pose, kind) if delta is None else ())
         if kind == "source_to_combo" and not all(body) and not any(d for (d, _), _ in parts):
             note = ("what the combination adds to its posed part is face or finger poses: the body decoder does not move "
                     "them, and " + ("this model has no local detail stage" if self.detail is None
@@ -353,40 +365,52 @@ class Transfer:
         return TransferOutput(gated, raw, gate, signal, label, predictor, novelty, detail_gates, mix, note)
 
     def _corrective_prediction(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy, magnitude: float,
-                               pose_b: str | None, blend: float) -> TransferOutput:
+                               pose_b: str | None, blend: float, example: dict[str, float] | None = None
+                               ) -> TransferOutput:
         """The corrective of a skinned mesh: source + magnitude × the slider mix of each pose's corrective fields (a
         combo: the sum of its components', as the rig adds them), read from the mesh's own region shape. The fields
         read no latent delta, so there is no noise gate (gate 1) and the oracle is the mean; the nearest-identity
         strategy reads the nearest training identity's own samples (its rests) when one is as alike as the pooled
-        read's (`PoseCorrective.nearest`), and says so when not."""
-        if pose is None:
+        read's (`PoseCorrective.nearest`), and says so when not. `example`: pose A is an example pair's corrective
+        read as the fields' poses ({pose: weight}, `example_corrective`; empty: unread, no corrective, said so)."""
+        if pose is None and example is None:
             raise ValueError("predict needs a pose (or an example pair's delta)")
         s = parse_strategy(strategy)
         person, label = None, "mean" if s != "oracle" else "oracle"
-        if s == "nearest_identity_delta":
-            label = self.bank.nearest_identity(CORRECTIVE_KIND, pose, mesh.mu)[0]
+        named = pose_b if example is not None else pose  # the pose the strategy reads (a blend's B with an example)
+        if named is not None and s == "nearest_identity_delta":
+            label = self.bank.nearest_identity(CORRECTIVE_KIND, named, mesh.mu)[0]
             person = label.split("@")[0]
         elif s.startswith("identity:"):
             label = s.split(":", 1)[1]
             person = label.split("@")[0]
         fields = self.correctives
         note = fields.available(mesh.vertices, mesh.faces)
+        if example is not None and not example and note is None:
+            note = ("no corrective read from the example pair: the corrective fields follow anny's topology by vertex "
+                    "index, and the example's meshes are not it (or hold no corrective)")
         v = mesh.vertices.astype(np.float64)
         out = np.zeros_like(v)
-        weights = [(pose, 1.0 - blend if pose_b is not None else 1.0)] + ([(pose_b, blend)] if pose_b is not None else [])
+        w_a = 1.0 - blend if pose_b is not None else 1.0
+        a = [(pose, w_a, person)] if example is None else [(p, w_a * x, None) for p, x in example.items()]
         moved, pooled = False, []
-        for name, w in weights:
+        for name, w, who in a + ([(pose_b, blend, person)] if pose_b is not None else []):
             parts = [c for c in (get_pose(name).components or (name,)) if fields.has(c)]
             for c in parts if note is None and w * magnitude != 0 else ():
-                d, own = fields.displacement(v, c, person)
+                d, own = fields.displacement(v, c, who)
                 out += w * magnitude * d
                 moved = True
-                if person is not None and not own:
+                if who is not None and not own:
                     pooled.append(c)
         if pooled:
             note = f"{label}'s own samples are unlike this mesh ({', '.join(pooled)}): the pooled read"
+        if example and note is None:
+            from latent_model.detail import describe_mix
+
+            note = f"the example's corrective reads as {describe_mix(example)}"
         pred = (v + out).astype(np.float32)
-        return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), label, "correctives", note=note)
+        return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), "example" if example is not None else label,
+                              "correctives", note=note)
 
     def _local_only(self, pose: str | None, kind: PairKind) -> bool:
         """Whether the body decoder adds nothing to this pose: for neutral_to_pose, when the local detail stage moves
@@ -429,11 +453,21 @@ class Transfer:
         added = [c for c in get_pose(combo).components if c != component and detail_regions_of(c)]
         return [(self.detail.pose_deltas(c, person), 1.0) for c in added]
 
-    def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float
-                    ) -> tuple[np.ndarray, np.ndarray, dict[str, float], dict[str, dict[str, float]]]:
+    @staticmethod
+    def _held(key: str | None, kind: PairKind) -> tuple[str, ...]:
+        """The face and finger poses a `source_to_combo` source already stands in (its component's), () otherwise."""
+        if key is None or kind != "source_to_combo":
+            return ()
+        component = get_pose(split_bank_key(kind, key)[1])
+        return tuple(c for c in (component.components or (component.name,)) if detail_regions_of(c))
+
+    def _add_detail(self, mesh: PreparedMesh, raw: np.ndarray, gated: np.ndarray, parts: list, magnitude: float,
+                    held: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray, dict[str, float], dict[str, dict[str, float]]]:
         """(raw, gated, {region: gate}, {region: {pose: weight}}) with the local detail of `parts`
         [(({region: delta}, averaged), weight)] added, each region's delta weighed by the slider weight, the
-        magnitude and (gated) its own noise gate; the last: what the deltas read as (`LocalDetailModel.mix`)."""
+        magnitude and (gated) its own noise gate; the last: what the deltas read as (`LocalDetailModel.mix`).
+        `held`: the face and finger poses the source stands in (`_held`): the parts add to them (a fist from a bent
+        base knuckle turns the other joints about where they now are)."""
         if magnitude == 0 or not any(d for (d, _), _ in parts):
             return raw, gated, {}, {}
         regions = self.regions(mesh)
@@ -451,8 +485,8 @@ class Transfer:
             for r, d in part.items():
                 for pose, x in self.detail.mix(r, d).items():
                     mix.setdefault(r, {})[pose] = mix.get(r, {}).get(pose, 0.0) + w * x
-        raw = (raw + self.detail.displacement(regions, ungated, raw)).astype(np.float32)
-        gated = (gated + self.detail.displacement(regions, weighed, gated)).astype(np.float32)
+        raw = (raw + self.detail.displacement(regions, ungated, raw, held)).astype(np.float32)
+        gated = (gated + self.detail.displacement(regions, weighed, gated, held)).astype(np.float32)
         return raw, gated, gates, mix
 
     def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -138,6 +138,58 @@ def test_a_combo_adds_its_components_and_the_blend_mixes(with_fields, generator,
     np.testing.assert_allclose(mixed, 0.75 * parts[0] + 0.25 * parts[1], atol=1e-5)
 
 
+def test_an_example_pairs_corrective_reads_as_its_pose_and_carries_to_another_character(with_fields, generator,
+                                                                                         tiny_corpus):
+    from latent_model.analysis.metrics import mesh_errors
+
+    a, b = _held_out()[:2]
+    ex = [with_fields.prepare(x, tiny_corpus.faces) for x in _skinned(generator, a, "kneeBentLf")]
+    mix = with_fields.example_corrective(*ex)
+    assert max(mix, key=mix.get) == "kneeBentLf" and mix["kneeBentLf"] > 0.5
+    skinned, truth = _skinned(generator, b, "kneeBentLf")
+    mesh = with_fields.prepare(skinned, tiny_corpus.faces)
+    delta = with_fields.example_delta(*ex)
+    out = with_fields.predict_detail(mesh, None, kind=KIND, delta=delta, corrective_mix=mix)
+    assert out.predictor == "correctives" and out.label == "example" and "kneeBentLf" in out.note
+    assert mesh_errors(out.vertices, truth, skinned)["explained"] > 0.2
+    # what the example reads as is what moves B: the elbow's corrective read instead moves the elbow
+    elbow = with_fields.predict(mesh, None, kind=KIND, delta=delta, corrective_mix={"elbowBentLf": 1.0})
+    assert np.abs(elbow - out.vertices).max() > 1e-3
+    np.testing.assert_allclose(elbow, with_fields.predict(mesh, "elbowBentLf", "mean", kind=KIND), atol=1e-6)
+    # unread (another topology's example): no motion, said so -- never the latent network's reading
+    none = with_fields.predict_detail(mesh, None, kind=KIND, delta=delta)
+    assert np.array_equal(none.vertices, mesh.vertices) and "example" in none.note
+
+
+def test_lrr_transfer_carries_an_example_pairs_corrective(with_fields, fields, generator, tmp_path, capsys):
+    import shutil
+
+    import trimesh
+
+    from latent_model import meshio
+    from latent_model.checkpoint import save_checkpoint
+    from latent_model.cli import main
+    from latent_model.config import preset
+
+    ck, bank = tmp_path / "model.safetensors", tmp_path / "bank.safetensors"
+    save_checkpoint(ck, with_fields.model, preset("tiny"), "all", 0)
+    with_fields.bank.save(bank)
+    shutil.copy(fields[0], tmp_path / "correctives.safetensors")  # beside the checkpoint: loaded with it
+    a, b = _held_out()[:2]
+    faces = np.asarray(generator.faces)
+    for name, x in zip(("A.obj", "A1.obj"), _skinned(generator, a, "kneeBentLf")):
+        trimesh.Trimesh(x, faces, process=False).export(tmp_path / name)
+    skinned, _ = _skinned(generator, b, "kneeBentLf")
+    trimesh.Trimesh(skinned, faces, process=False).export(tmp_path / "B.obj")
+    argv = ["transfer", "--example-neutral", tmp_path / "A.obj", "--example-posed", tmp_path / "A1.obj", "--mesh",
+            tmp_path / "B.obj", "--kind", KIND, "--checkpoint", ck, "--bank", bank, "-o", tmp_path / "B1.obj"]
+    assert main([str(x) for x in argv]) == 0
+    printed = capsys.readouterr().out
+    assert "the example's corrective reads as kneeBentLf" in printed and "corrective fields" in printed
+    got, _, _ = meshio.read_file(tmp_path / "B1.obj")
+    assert np.linalg.norm(got - skinned, axis=1).max() > 1e-3
+
+
 def test_another_topology_gets_no_corrective_and_is_told(with_fields, generator):
     import trimesh
 

@@ -54,9 +54,9 @@ def test_a_delta_reads_as_its_mix_of_poses_above_the_floor():
     assert RegionFields.read(0.05 * basis[0], basis, 0.1) == pytest.approx([0.05, 0.0, 0.0])
 
 
-def _finger(n: int = 600) -> np.ndarray:
+def _finger(n: int = 600, seed: int = 0) -> np.ndarray:
     """Points of a thin finger along x in [0, 3] (joints at x = 1 and 2)."""
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     a = rng.uniform(0, 2 * np.pi, n)
     return np.c_[rng.uniform(0.0, 3.0, n), 0.1 * np.cos(a), 0.1 * np.sin(a)]
 
@@ -89,6 +89,24 @@ def test_a_fingers_knuckle_turns_compose_as_a_skeletons_and_one_turn_is_its_fiel
     # one turn alone is its field; half of it turns half the angle (not half the displacement)
     assert np.abs(fields.mixed(np.array([1.0, 0.0])) - base).max() < 1e-12
     assert np.abs(fields.mixed(np.array([0.5, 0.0])) - (_turn(x, 1.0, 20.0) - x)).max() < 1e-9
+
+
+def test_a_source_bent_at_the_base_turns_its_tip_about_where_the_tip_joint_now_is():
+    x = _finger()
+    base, tip = _turn(x, 1.0, 40.0) - x, _turn(x, 2.0, 50.0) - x
+    fields = RegionFields(x, ["base", "tip"], np.stack([base, tip]), chains=((0, 1),))
+    y = _finger(500, seed=1)  # another finger, sampled elsewhere, standing in the base pose (source_to_combo)
+    source = _turn(y, 1.0, 40.0)
+    truth = np.where((y[:, 0] > 1.0)[:, None], _turn(_turn(y, 2.0, 50.0), 1.0, 40.0), y)
+    held = fields.place(source, fields.weights_of(["base"]))
+    assert held.held.tolist() == [1.0, 0.0]
+    moved = source + fields.displacement(held, np.array([0.0, 1.0]))
+    error = lambda p: np.linalg.norm(p - truth, axis=1)  # noqa: E731
+    assert error(moved).mean() < 0.02 and error(moved).max() < 0.1  # the tip moves up to 0.85
+    # placed on the straight anchor, the bent tip is matched to the wrong points and turns the wrong way
+    plain = source + fields.displacement(fields.place(source), np.array([0.0, 1.0]))
+    assert error(plain).mean() > 0.2
+    assert fields.place(source, fields.weights_of([])).held is None  # no held pose: the plain placement
 
 
 def test_finger_chains_group_each_fingers_knuckles_base_first():
