@@ -314,8 +314,9 @@ class Transfer:
         hands, `source_to_combo` what the combination's added face poses do (`_detail_parts`, `_add_detail`)."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
         if self.predicts_with(kind) == "correctives":
+            example = delta is not None or corrective_mix is not None
             return self._corrective_prediction(mesh, pose, strategy, magnitude, pose_b, blend,
-                                               None if delta is None else (corrective_mix or {}))
+                                               (corrective_mix or {}) if example else None)
         if delta is not None:
             d, label = np.asarray(delta, np.float32), "example"
         elif pose is None:

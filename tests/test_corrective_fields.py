@@ -227,5 +227,7 @@ def test_the_evaluation_measures_every_pose_and_rest(with_fields):
     assert m["correctives.elbowBentLf.no_motion.bind.explained"] == 0.0
     assert m["correctives.elbowBentLf.mean.bind.explained"] > 0.2
     assert {"correctives.targets.mean.tpose.explained", "correctives.targets.nearest.bind.explained"} <= set(m)
+    # each character also reads the other's corrective as an example pair (its own rest: the T-pose's for bind)
+    assert m["correctives.elbowBentLf.example.bind.explained"] > 0.1  # better than no motion (tiny fields: 4 samples)
     text = markdown(m)
-    assert "kneeBentLf" in text and "tpose" in text
+    assert "kneeBentLf" in text and "tpose" in text and "example bind" in text

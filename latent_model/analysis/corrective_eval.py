@@ -18,6 +18,8 @@ from latent_model.corpus.identities import IdentitySpec
 
 KIND = "skinning_to_skinning_plus_blendshape"
 STRATEGIES = (("mean_pose_delta", "mean"), ("nearest_identity_delta", "nearest"))
+EXAMPLE = "example"  # the pose's corrective of the next held-out character as an example pair (`example_corrective`)
+SHOWN = tuple(name for _, name in STRATEGIES) + (EXAMPLE,)
 TARGET_JOINTS = ("elbow", "knee", "shoulder")  # the issue's target: explained >= 0.3 on these, never below 0
 
 
@@ -29,21 +31,23 @@ def evaluate_correctives(transfer, specs: list[IdentitySpec], say: Callable[[str
         return {}
     t0 = time.time()
     rows: dict[tuple[str, str, str], list] = {}
-    for part in map_characters(_character, specs, transfer, workers):
+    for part in map_characters(_character, specs, transfer, workers, shared=tuple(specs)):
         for key, r in part.items():
             rows.setdefault(key, []).extend(r)
     say(f"  correctives: {len(specs)} characters ({time.time() - t0:.0f} s)")
     return summarise(rows)
 
 
-def _character(transfer, _corpus, _shared, spec: IdentitySpec) -> dict:
-    """{(pose, strategy, rest): [mesh_errors]} of one character posed in every corrective pose."""
+def _character(transfer, _corpus, specs: tuple[IdentitySpec, ...], spec: IdentitySpec) -> dict:
+    """{(pose, strategy, rest): [mesh_errors]} of one character posed in every corrective pose; the example strategy
+    reads the next of the held-out `specs` (in its own rest) as the example pair."""
     from latent_model.corpus.build import generator
     from latent_model.corpus.sdf import body_component_faces
 
     gen = generator()
     faces = np.asarray(gen.faces, np.int64)
     rows: dict[tuple[str, str, str], list] = {}
+    other = specs[(specs.index(spec) + 1) % len(specs)] if len(specs) > 1 else None
     for pose in transfer.correctives.poses:
         g = gen.pose(spec, pose)
         skinned, truth = g.skinning.astype(np.float64), g.skinning_plus_blendshape.astype(np.float64)
@@ -51,6 +55,11 @@ def _character(transfer, _corpus, _shared, spec: IdentitySpec) -> dict:
         for strategy, name in STRATEGIES:
             pred = transfer.predict(mesh, pose, strategy, kind=KIND).astype(np.float64)
             rows.setdefault((pose, name, spec.rest), []).append(mesh_errors(pred, truth, skinned))
+        if other is not None:
+            e = gen.pose(other, pose)
+            pair = [transfer.prepare(x.astype(np.float64), faces) for x in (e.skinning, e.skinning_plus_blendshape)]
+            pred = transfer.predict(mesh, None, kind=KIND, corrective_mix=transfer.example_corrective(*pair))
+            rows.setdefault((pose, EXAMPLE, spec.rest), []).append(mesh_errors(pred.astype(np.float64), truth, skinned))
         rows.setdefault((pose, "no_motion", spec.rest), []).append(mesh_errors(skinned, truth, skinned))
     return rows
 
@@ -66,7 +75,7 @@ def summarise(rows: dict) -> dict:
     rests = sorted({r for _, _, r in rows}, key=lambda r: (r != "bind", r))
     poses = sorted({p for p, _, _ in rows})
     targets = [p for p in poses if p.startswith(TARGET_JOINTS)]
-    for _, name in STRATEGIES:
+    for name in SHOWN:
         for rest in rests:
             vals = [m[f"correctives.{p}.{name}.{rest}.explained"] for p in targets if f"correctives.{p}.{name}.{rest}.explained" in m]
             if vals:
@@ -83,14 +92,14 @@ def markdown(m: dict) -> str:
         return "(no corrective fields beside the checkpoint)"
     rests = sorted({k.split(".")[3] for k in m if k.startswith(f"correctives.{poses[0]}.mean.")},
                    key=lambda r: (r != "bind", r))
-    head = ["pose"] + [f"{s} {r}" for _, s in STRATEGIES for r in rests]
+    head = ["pose"] + [f"{s} {r}" for s in SHOWN for r in rests]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for p in poses:
         cells = [f"{m[f'correctives.{p}.{s}.{r}.explained']:.2f} ({m[f'correctives.{p}.{s}.{r}.worst_explained']:.2f})"
-                 if f"correctives.{p}.{s}.{r}.explained" in m else "" for _, s in STRATEGIES for r in rests]
+                 if f"correctives.{p}.{s}.{r}.explained" in m else "" for s in SHOWN for r in rests]
         out.append(f"| {p} | " + " | ".join(cells) + " |")
     out += ["", "| joints " + ", ".join(TARGET_JOINTS) + " | " + " | ".join(rests) + " |", "|---|" + "---|" * len(rests)]
-    for _, s in STRATEGIES:
+    for s in SHOWN:
         out.append(f"| {s}: mean explained (lowest pose) | " + " | ".join(
             f"{m[f'correctives.targets.{s}.{r}.explained']:.2f} ({m[f'correctives.targets.{s}.{r}.min_pose_explained']:.2f})"
             if f"correctives.targets.{s}.{r}.explained" in m else "" for r in rests) + " |")
