@@ -36,6 +36,8 @@ ANTAGONIST = -0.7
 # a knuckle's turn is fitted on the points moving at least this fraction of its field's largest displacement: the
 # outer part of the finger, which turns whole (the skin near the joint blends between the bones)
 TURN_CORE = 0.3
+FIT_MAX = 2.0  # an example's region motion read as pose weights up to twice each pose (`RegionFields.fit`)
+FIT_DROP = 0.05  # ... a weight under this is dropped (what an example's still hand reads as)
 
 
 def affine_align(x: np.ndarray, anchor: np.ndarray, iterations: int = ALIGN_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
@@ -188,6 +190,24 @@ class RegionFields:
         if keep.any():
             out[keep], _ = nnls(basis[keep].T.astype(np.float64), np.asarray(delta, np.float64))
         return out
+
+    def fit(self, placement: Placement, displacement: np.ndarray) -> np.ndarray:
+        """(P,) pose weights in [0, FIT_MAX] whose displacement of the placed region best makes `displacement` (M, 3,
+        its local coordinates): an example pair's own motion read through the fields. Least squares through the
+        composed turns from two starts (the fields' linear read, and every pose at half), the better kept; a weight
+        under FIT_DROP is dropped. A fist's twelve knuckles come back at about 1 each, where the hand's latent
+        delta read as two knuckles."""
+        from scipy.optimize import least_squares
+
+        target = np.asarray(displacement, np.float64).ravel()
+        columns = np.stack([self.displacement(placement, e).ravel() for e in np.eye(len(self.poses))], axis=1)
+        linear, _ = nnls(columns, target)
+        best = None
+        for start in (np.clip(linear, 0.0, FIT_MAX), np.full(len(self.poses), 0.5), np.ones(len(self.poses))):
+            r = least_squares(lambda w: self.displacement(placement, w).ravel() - target, start, bounds=(0.0, FIT_MAX))
+            if best is None or r.cost < best.cost:
+                best = r
+        return np.where(best.x >= FIT_DROP, best.x, 0.0)
 
     def displacement(self, placement: Placement, weights: np.ndarray) -> np.ndarray:
         """(M, 3) displacement of the placed region's vertices (their local coordinates) for pose weights (P,) added

@@ -222,10 +222,11 @@ class Transfer:
 
     def example_detail(self, neutral: PreparedMesh, posed: PreparedMesh) -> dict[str, np.ndarray] | None:
         """{region: delta} of an example pair for the local detail stage (None without one): the posed mesh's
-        head and hands sampled co-moving with the neutral's (`LocalDetailModel.example_deltas`)."""
+        head and hands sampled co-moving with the neutral's, a hand read from its own motion
+        (`LocalDetailModel.example_reading`)."""
         if self.detail is None:
             return None
-        return self.detail.example_deltas(self.regions(neutral), posed.vertices.astype(np.float64))
+        return self.detail.example_reading(self.regions(neutral), posed.vertices.astype(np.float64))
 
     def example_corrective(self, neutral: PreparedMesh, posed: PreparedMesh) -> dict[str, float] | None:
         """{pose: weight} an example pair's corrective (a skinned mesh -> the same with its corrective shapes) reads

@@ -117,6 +117,33 @@ def test_an_example_pair_gives_co_moving_region_deltas(with_detail, generator, t
     assert set(out.detail) <= {"head", "hand_left", "hand_right"} and "head" in out.detail
 
 
+def test_an_example_pairs_hand_is_read_from_its_own_motion(with_detail, generator, tiny_corpus):
+    """A hand's fields chain: an example's hand motion is fitted through them (`RegionFields.fit`), not read from its
+    latent delta; the fitted weights stand for the delta, and the prediction moves the target's hand by them."""
+    from latent_model.corpus.identities import IdentitySpec
+    from latent_model.corpus.poses import POSES
+    from latent_model.detail import FittedDelta
+
+    detail = with_detail.detail
+    pose = detail.fields["hand_left"].poses[0]
+    person = IdentitySpec("example", "train", {}, {})
+    a = generator.neutral(person).astype(np.float32)
+    a1 = getattr(generator.pose(person, POSES[pose]), FINAL).astype(np.float32)
+    pa, pa1 = with_detail.prepare(a, generator.faces), with_detail.prepare(a1, generator.faces)
+    deltas = with_detail.example_detail(pa, pa1)
+    hand = deltas["hand_left"]
+    assert isinstance(hand, FittedDelta) and not isinstance(deltas["head"], FittedDelta)
+    assert max(detail.mix("hand_left", hand), key=detail.mix("hand_left", hand).get) == pose
+    assert hand.weights[0] > 0.5 and np.allclose(hand, hand.weights @ detail.basis["hand_left"], atol=1e-5)
+    assert not np.any(deltas["hand_right"])  # the other hand did not move: nothing fitted
+    assert (-hand).weights is None  # an array made from it is a plain delta again
+    _, mesh = _target(tiny_corpus, with_detail)
+    out = with_detail.predict_detail(mesh, None, delta=with_detail.example_delta(pa, pa1), detail_delta=deltas)
+    moved = np.linalg.norm(out.vertices - mesh.vertices, axis=1)
+    hand_vertices = with_detail.regions(mesh).frames["hand_left"].vertices
+    assert "hand_left" in out.detail and moved[hand_vertices].max() > 1e-3
+
+
 def test_the_detail_evaluation_measures_the_stage(with_detail, tiny_motion, tmp_path):
     """`lrr evaluate`'s local detail section on two held-out tiny characters: every face and finger pose gets a
     latent cosine and R_cond/noise, and transfer rows per rest; a transfer without the stage measures nothing."""
