@@ -5,6 +5,8 @@ the focus on "what moves" (the default) every change of character, pose or condi
 in the truth (or, without one, in the prediction) when it is small, and the whole body when it is not; when nothing
 moves (a face pose the noise gate zeroes on an opened mesh), the pose's own region. The user can also pin the
 focus on the head or a hand, located on the surface of any humanoid in any rest pose (`surface.detail_regions`).
+The views share one camera, so an example pair's A and A1 are drawn shifted to put their own framed part where the
+target's is (`example_offset`): a close-up of the target's hand shows the example's hand too.
 Qt-free: the session computes a `Framing` with each view state; the views apply it.
 """
 from __future__ import annotations
@@ -98,3 +100,24 @@ def frame(focus: str, source: np.ndarray, regions: Callable[[], dict[str, np.nda
     # a region reaches from its extremity past the chin or the wrist: its sparse outer rim (the neck and shoulders)
     # would set the box, a head framed 30 cm wide; the densely meshed part sets it
     return Framing(focus, _box(source[masks[focus]], 0.0, MIN_SIZE, REGION_TRIM))
+
+
+def _centre(box: tuple[float, ...]) -> np.ndarray:
+    return np.array([(box[0] + box[1]) / 2, (box[2] + box[3]) / 2, (box[4] + box[5]) / 2])
+
+
+def example_offset(framing: Framing, neutral: np.ndarray, posed: np.ndarray,
+                   regions: Callable[[], dict[str, np.ndarray] | None]) -> np.ndarray:
+    """(3,) the shift that puts an example pair's own framed part — its region of that name, or for a close-up of
+    what moves what A -> A1 moves — at the centre of the target's framing; zero for the whole body or when the
+    example has no such part (`regions`: A's detail regions, called only for a region)."""
+    if framing.region == "body":
+        return np.zeros(3)
+    if framing.region == "moving":
+        sel = moving_vertices(neutral, posed)
+    else:
+        masks = regions()
+        sel = None if masks is None else masks.get(framing.region)
+    if sel is None or not np.any(sel):
+        return np.zeros(3)
+    return _centre(framing.bounds) - _centre(_box(np.asarray(neutral)[sel], trim=REGION_TRIM))

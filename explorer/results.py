@@ -135,6 +135,7 @@ class ViewState:
     seconds_predict: float = 0.0  # of which inside Transfer.predict
     example: ExamplePair | None = None  # the example pair that conditioned pose A, if one did
     framing: Framing | None = None  # what the views frame (explorer/framing.py; None: leave the camera alone)
+    example_offset: np.ndarray | None = None  # (3,) where the example views draw A and A1 (`framing.example_offset`)
 
     @property
     def target(self) -> str:

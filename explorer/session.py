@@ -39,7 +39,7 @@ from latent_model.types import FINAL, PAIR_KINDS
 
 from explorer.events import Event
 from explorer.example_pair import ExamplePairs, Progress, read_example_steps
-from explorer.framing import frame
+from explorer.framing import example_offset, frame
 from explorer.results import (ExampleOpened, ExamplePair, Exported, Failed, HeatmapData, HeatmapRequest, MeshOpened,
                               NoiseFloor, PairRef, Predicted, Prediction, ViewState, example_subject)
 from explorer.selection import Selection, SessionError
@@ -94,6 +94,7 @@ class Session:
         self._meshes_lock = threading.Lock()
         self._prepared: dict[tuple, object] = {}
         self._noise: dict[str, NoiseFloor] = {}
+        self._example_masks: dict[tuple, dict[str, np.ndarray] | None] = {}  # (pair name, file stamp) -> A's regions
         # window state: written on the UI thread only
         self.events = SessionEvents()
         self.selection: Selection | None = None  # the latest selection asked for
@@ -342,8 +343,18 @@ class Session:
             t_dec += dt
         framing = frame(sel.focus, source, lambda: self._regions(prepared), [truth, preds[0].vertices],
                         None if example is not None else sel.pose)
+        offset = None if example is None else example_offset(
+            framing, example.neutral.vertices, example.posed.vertices, lambda: self._example_regions(example))
         return ViewState(sel, pair, prepared.faces, source, truth, truth_title, preds, time.perf_counter() - t0, t_dec,
-                         example, framing)
+                         example, framing, offset)
+
+    def _example_regions(self, example: ExamplePair) -> dict[str, np.ndarray] | None:
+        """The head and hands of an example's A (its surface read once per pair: about a second)."""
+        key = (example.name, example.stamp)
+        if key not in self._example_masks:
+            m = example.neutral
+            self._example_masks[key] = self._regions(self.transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces))
+        return self._example_masks[key]
 
     @staticmethod
     def _regions(prepared) -> dict[str, np.ndarray] | None:

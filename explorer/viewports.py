@@ -59,6 +59,12 @@ def _add_smooth(plotter: QtInteractor, poly: pv.PolyData, **kw):
     return actor
 
 
+def _same_offset(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return bool(np.allclose(a, b))
+
+
 class ViewPanel(QWidget):
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -88,6 +94,7 @@ class ViewPanel(QWidget):
         self._range: tuple[float, float] | None = None  # the prediction views' colour range (mm)
         self._example = None  # the ExamplePair drawn in the example views
         self._example_actors: dict = {}
+        self._example_offset: np.ndarray | None = None  # the shift A and A1 are drawn with
         self.wireframe = False
         self.state: ViewState | None = None
         self._camera_set = False
@@ -169,16 +176,20 @@ class ViewPanel(QWidget):
             self.set_view("front", render=False)
             self._camera_set = True
 
-    def _draw_example(self, example) -> None:
-        """Draw an example pair's A and A1 in their views (their own topology: actors made anew)."""
+    def _draw_example(self, example, offset: np.ndarray | None = None) -> None:
+        """Draw an example pair's A and A1 in their views (their own topology: actors made anew), shifted by
+        `offset` (3,) so that the shared camera's close-up shows their own framed part (`framing.example_offset`)."""
         self._example, self._example_actors = example, {}
+        self._example_offset = None if offset is None else np.asarray(offset, np.float64)
+        shift = np.zeros(3) if offset is None else np.asarray(offset, np.float64)
         style = "wireframe" if self.wireframe else "surface"
         for n, mesh, colour, what in zip(EXAMPLE_VIEWS, (example.neutral, example.posed), (SKIN, EXAMPLE_POSED),
                                          ("example A (neutral)", "example A1 (posed)")):
             p = self.plotters[n]
             p.clear_actors()
             self._texts.pop(n, None)
-            poly = _poly(mesh.vertices, mesh.faces, vertex_normals(mesh.vertices, mesh.faces))
+            v = (mesh.vertices + shift).astype(np.float32)
+            poly = _poly(v, mesh.faces, vertex_normals(mesh.vertices, mesh.faces))
             self._example_actors[n] = _add_smooth(p, poly, color=colour, style=style)
             self._title(n, f"{what}\n{mesh.name}")
 
@@ -225,8 +236,9 @@ class ViewPanel(QWidget):
             self.set_view("reset", render=False)
             self._camera_set = True
             dirty.update(TARGET_VIEWS + EXAMPLE_VIEWS)
-        if state.example is not None and state.example is not self._example:
-            self._draw_example(state.example)
+        moved_example = not _same_offset(state.example_offset, self._example_offset)
+        if state.example is not None and (state.example is not self._example or moved_example):
+            self._draw_example(state.example, state.example_offset)
             dirty.update(EXAMPLE_VIEWS)
         for n, pred in zip(("prediction", "prediction_b"), state.predictions + [None]):
             if pred is None:

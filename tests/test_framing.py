@@ -4,7 +4,7 @@ zeroed falls back to the region its name moves; the head and hands are found on 
 import numpy as np
 import pytest
 
-from explorer.framing import FOCUS_CHOICES, frame, moving_vertices, region_of_pose
+from explorer.framing import FOCUS_CHOICES, example_offset, frame, moving_vertices, region_of_pose
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.types import FINAL
 
@@ -90,6 +90,25 @@ def test_a_pinned_focus_frames_its_region_whatever_moves(body):
     assert set(FOCUS_CHOICES) == {"auto", "body", "head", "hand_left", "hand_right"}
     with pytest.raises(ValueError, match="focus"):
         frame("feet", v, lambda: regions, [None], None)
+
+
+def test_an_example_pair_is_shifted_to_show_its_own_framed_part(body):
+    """The views share one camera: an example (A in bind, A1 its fist) beside a T-pose target is drawn shifted so
+    that its own left hand (or what it moves) sits where the target's framed hand is; the whole body is not shifted."""
+    v, regions, posed = body["tpose"]
+    a, a_regions, a_posed = body["bind"]
+    for focus, moved in (("hand_left", None), ("auto", posed["fistLf"])):
+        f = frame(focus, v, lambda: regions, [moved], "fistLf")
+        offset = example_offset(f, a, a_posed["fistLf"], lambda: a_regions)
+        centre = np.array([(f.bounds[0] + f.bounds[1]) / 2, (f.bounds[2] + f.bounds[3]) / 2, (f.bounds[4] + f.bounds[5]) / 2])
+        hand = a[a_regions["hand_left"]] + offset
+        assert np.linalg.norm(np.median(hand, axis=0) - centre) < 0.05, focus  # A's hand is in the close-up
+        assert np.linalg.norm(np.median(a[a_regions["hand_left"]], axis=0) - centre) > 0.15  # unshifted it was not
+    whole = frame("body", v, lambda: regions, [None], None)
+    assert not example_offset(whole, a, a_posed["fistLf"], lambda: a_regions).any()
+    # an example with no such part (a pair that moves nothing, regions not found) is not shifted
+    f = frame("auto", v, lambda: regions, [posed["fistLf"]], "fistLf")
+    assert not example_offset(f, a, a, lambda: None).any()
 
 
 def test_hands_hanging_by_the_thighs_are_found_as_hands(generator):
