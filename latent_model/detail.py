@@ -110,11 +110,15 @@ class LocalDetailModel:
         placed = {r: self.fields[r].place(f.to_local(v[f.vertices])) for r, f in frames.items() if r in self.fields}
         return MeshRegions(frames, codes, v, sdf_faces, seed, placed)
 
-    def example_deltas(self, neutral: "MeshRegions", posed_vertices: np.ndarray) -> dict[str, np.ndarray]:
+    def example_deltas(self, neutral: "MeshRegions", posed_vertices: np.ndarray,
+                       skip: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
         """{region: standardised delta} of an example pair: the posed mesh (A's topology) sampled co-moving with
-        the neutral (its frames, following each region, the neutral's seed): what the region codes see."""
+        the neutral (its frames, following each region, the neutral's seed): what the region codes see. `skip`:
+        regions not wanted."""
         out = {}
         for r, f in neutral.frames.items():
+            if r in skip:
+                continue
             pts, vals = sample_region(posed_vertices, neutral.sdf_faces, f, self.bank.sampling, neutral.seed,
                                       rest=neutral.vertices)
             out[r] = self._code(r, pts, vals) - neutral.codes[r]
@@ -125,11 +129,11 @@ class LocalDetailModel:
         except that a region whose fields chain (a hand) reads the example's own motion (`example_reads`).
         Validation (an example person's pair on 3 others): fistLf 0.11 -> 0.86 explained, fingerKnuckleB02Lf 0.55
         -> 0.80, A01Lf 0.80 -> 0.83, the latent's leak (0.09-0.19 mm) gone."""
-        out = self.example_deltas(neutral, posed_vertices)
-        for r in out:
-            if r in self.fields and self.fields[r].chains:
-                out[r] = FittedDelta.of(self.example_reads(neutral, posed_vertices, r), self.basis[r])
-        return out
+        fitted = tuple(r for r in neutral.frames if r in self.fields and self.fields[r].chains)
+        out = self.example_deltas(neutral, posed_vertices, skip=fitted)
+        for r in fitted:
+            out[r] = FittedDelta.of(self.example_reads(neutral, posed_vertices, r), self.basis[r])
+        return {r: out[r] for r in neutral.frames}
 
     def example_reads(self, neutral: "MeshRegions", posed_vertices: np.ndarray, region: str) -> np.ndarray:
         """(P,) pose weights of an example's region motion (A -> A1, one topology), fitted through the region's
