@@ -102,13 +102,10 @@ class LocalDetailModel:
     # ------------------------------------------------------------------ per mesh
     def regions(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray, features=None,
                 seed: int = 0) -> "MeshRegions":
-        """A mesh's region frames, standardised codes and places on the fields' anchors (its neutral: what a
-        prediction starts from)."""
+        """A mesh's region frames (its neutral: what a prediction starts from); each region's code and place on its
+        fields' anchor are made when first read (`MeshRegions.code`, `MeshRegions.placement`)."""
         v = np.asarray(vertices, dtype=np.float64)
-        frames = region_frames(v, faces, features)
-        codes = {r: self._code(r, *sample_region(v, sdf_faces, f, self.bank.sampling, seed)) for r, f in frames.items()}
-        placed = {r: self.fields[r].place(f.to_local(v[f.vertices])) for r, f in frames.items() if r in self.fields}
-        return MeshRegions(frames, codes, v, sdf_faces, seed, placed)
+        return MeshRegions(region_frames(v, faces, features), v, sdf_faces, seed, self)
 
     def example_deltas(self, neutral: "MeshRegions", posed_vertices: np.ndarray,
                        skip: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
@@ -121,7 +118,7 @@ class LocalDetailModel:
                 continue
             pts, vals = sample_region(posed_vertices, neutral.sdf_faces, f, self.bank.sampling, neutral.seed,
                                       rest=neutral.vertices)
-            out[r] = self._code(r, pts, vals) - neutral.codes[r]
+            out[r] = self._code(r, pts, vals) - neutral.code(r)
         return out
 
     def example_reading(self, neutral: "MeshRegions", posed_vertices: np.ndarray) -> dict[str, np.ndarray]:
@@ -143,7 +140,7 @@ class LocalDetailModel:
         posed = np.asarray(posed_vertices, np.float64)
         carried = f.follow(neutral.vertices, posed)
         local = carried.to_local(posed[f.vertices]) - f.to_local(neutral.vertices[f.vertices])
-        return self.fields[region].fit(neutral.placed[region], local)
+        return self.fields[region].fit(neutral.placement(region), local)
 
     def pose_deltas(self, pose: str, person: str | None = None) -> tuple[dict[str, np.ndarray], int]:
         """({region: delta}, how many characters it averages) of a vocabulary pose: the training mean, or
@@ -182,7 +179,7 @@ class LocalDetailModel:
             if not parts or r not in self.fields:
                 continue
             mix = sum(w * self._read(r, d) for d, w in parts)
-            local = self.fields[r].displacement(mesh.placement(r, self.fields[r], held), mix)
+            local = self.fields[r].displacement(mesh.placement(r, held), mix)
             carried = f.follow(mesh.vertices, moved)
             if carried.mirrored:
                 local[:, 2] = -local[:, 2]
@@ -227,28 +224,41 @@ class FittedDelta(np.ndarray):
 
 @dataclass
 class MeshRegions:
-    """A source mesh's region frames {region: RegionFrame}, standardised codes {region: (Z,)}, its vertices
-    (V, 3), SDF faces, the sampling seed (an example pair's posed mesh is sampled with it, co-moving) and where
-    each region lies on its fields' anchor {region: Placement}."""
+    """A source mesh's region frames {region: RegionFrame}, its vertices (V, 3), SDF faces, the sampling seed (an
+    example pair's posed mesh is sampled with it, co-moving) and the detail model that reads it. A region's
+    standardised code (`code`) and its place on its fields' anchor (`placement`) are made when first asked for and
+    kept: a prediction reads only the regions its pose moves (a finger pose one hand), and an evaluation prepares
+    hundreds of posed sources (sampling and encoding a region ~0.1 s, placing it 0.1-0.3 s)."""
 
     frames: dict[str, RegionFrame]
-    codes: dict[str, np.ndarray]
     vertices: np.ndarray
     sdf_faces: np.ndarray
     seed: int
-    placed: dict[str, Placement]
+    model: "LocalDetailModel" = field(repr=False)
+    codes: dict[str, np.ndarray] = field(default_factory=dict, repr=False)  # {region: (Z,)} made so far
+    placed: dict[str, Placement] = field(default_factory=dict, repr=False)  # {region: Placement} made so far
+    held_placed: dict[tuple[str, tuple[str, ...]], Placement] = field(default_factory=dict, repr=False)
 
-    held_placed: dict[tuple[str, tuple[str, ...]], Placement] = field(default_factory=dict)
+    def code(self, region: str) -> np.ndarray:
+        """(Z,) the region's standardised code (sampled with the mesh's seed, encoded once)."""
+        if region not in self.codes:
+            f = self.frames[region]
+            self.codes[region] = self.model._code(region, *sample_region(self.vertices, self.sdf_faces, f,
+                                                                         self.model.bank.sampling, self.seed))
+        return self.codes[region]
 
-    def placement(self, region: str, fields: RegionFields, held: tuple[str, ...] = ()) -> Placement:
+    def placement(self, region: str, held: tuple[str, ...] = ()) -> Placement:
         """Where the region lies on its fields' anchor; with `held` poses of its fields, on the anchor posed so
         (`RegionFields.place`), once per region and poses."""
+        fields = self.model.fields[region]
+        f = self.frames[region]
         weights = fields.weights_of(held)
         if not weights.any():
+            if region not in self.placed:
+                self.placed[region] = fields.place(f.to_local(self.vertices[f.vertices]))
             return self.placed[region]
         key = (region, tuple(sorted(held)))
         if key not in self.held_placed:
-            f = self.frames[region]
             self.held_placed[key] = fields.place(f.to_local(self.vertices[f.vertices]), weights)
         return self.held_placed[key]
 

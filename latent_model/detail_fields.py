@@ -48,10 +48,14 @@ def affine_align(x: np.ndarray, anchor: np.ndarray, iterations: int = ALIGN_ITER
     tree = cKDTree(anchor)
     xh = np.c_[x, np.ones(len(x))]
     m = np.r_[np.eye(3), np.zeros((1, 3))]  # (4, 3): y = xh @ m
+    pairs = None
     for _ in range(iterations):
         y = xh @ m
         _, to_anchor = tree.query(y)
         _, to_x = cKDTree(y).query(anchor)
+        if pairs is not None and np.array_equal(pairs[0], to_anchor) and np.array_equal(pairs[1], to_x):
+            break  # the same pairs give the same fit: converged exactly (a hand after ~15 of 30 iterations)
+        pairs = (to_anchor, to_x)
         m, *_ = np.linalg.lstsq(np.r_[xh, xh[to_x]], np.r_[anchor[to_anchor], anchor], rcond=None)
     return m[:3].T, m[3]
 

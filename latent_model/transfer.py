@@ -487,9 +487,11 @@ class Transfer:
             for r, d in part.items():
                 for pose, x in self.detail.mix(r, d).items():
                     mix.setdefault(r, {})[pose] = mix.get(r, {}).get(pose, 0.0) + w * x
-        raw = (raw + self.detail.displacement(regions, ungated, raw, held)).astype(np.float32)
-        gated = (gated + self.detail.displacement(regions, weighed, gated, held)).astype(np.float32)
-        return raw, gated, gates, mix
+        added = self.detail.displacement(regions, ungated, raw, held)
+        same = all(a[1] == b[1] for a, b in zip(ungated, weighed)) and (gated is raw or np.array_equal(gated, raw))
+        # every gate open on the same body prediction: the gated detail is the ungated one (computed once)
+        gated = (gated + (added if same else self.detail.displacement(regions, weighed, gated, held))).astype(np.float32)
+        return (raw + added).astype(np.float32), gated, gates, mix
 
     def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""
@@ -521,8 +523,8 @@ class Transfer:
         (delta, deltas averaged). A blend reads each pose's own delta and mixes the two motions (`mix_motions`):
         the mixed delta's direction swings between the poses' and the decoder reads it non-linearly (steps of
         7-8x the median on the slider), while mixed motions are continuous. Each pose's noise gate weighs its
-        motion (0 for a pose whose `body` flag is off: the local detail stage's); the reported gate and signal are
-        the weighted mean of the poses'."""
+        motion; a pose whose `body` flag is off (the local detail stage's alone) is not read by the decoder at all,
+        gated or raw; the reported gate and signal are the weighted mean of the poses'."""
         poses, weights = ([a], [1.0]) if b is None else ([a, b], [1.0 - blend, blend])
         gates, signals = zip(*(self.noise_gate(x, n) for x, n in poses))
         gates = [g if moves else 0.0 for g, moves in zip(gates, body)]
@@ -533,12 +535,13 @@ class Transfer:
             motions = [self._motion(mesh, *c, magnitude) for c in conditions]
             v = torch.from_numpy(mesh.vertices)[None].to(self.device)
             move = self._mover(mesh)
-            raw = move(v, mix_motions(motions, weights))[0].cpu().numpy()
+            raw = move(v, mix_motions(motions, [w * moves for w, moves in zip(weights, body)]))[0].cpu().numpy()
             if gate == 1.0:
                 return raw, raw, gate, signal
             gated = move(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
             return raw, gated[0].cpu().numpy(), gate, signal
-        raw = self._scaled_motions(mesh, conditions, [w * magnitude for w in weights])
+        # a local-only pose's decoder reading is not computed (half the motion decoder calls of an evaluation)
+        raw = self._scaled_motions(mesh, conditions, [w * magnitude * moves for w, moves in zip(weights, body)])
         if gate == 1.0:
             return raw, raw, gate, signal
         return raw, self._scaled_motions(mesh, conditions, [w * g * magnitude for w, g in zip(weights, gates)]), gate, signal

@@ -99,7 +99,8 @@ def _character(transfer, _corpus, shared: tuple, item: tuple[int, IdentitySpec])
         posed = getattr(gen.pose(spec, pose), FINAL).astype(np.float64)
         if pose != SYMMETRIC_POSE:
             region = detail_regions_of(pose)[0]
-            by_seed = {s: transfer.detail.example_deltas(r, posed)[region] for s, r in regions.items()}
+            others = tuple(x for x in regions[NOISE_SEEDS[0]].frames if x != region)  # only the pose's region
+            by_seed = {s: transfer.detail.example_deltas(r, posed, skip=others)[region] for s, r in regions.items()}
             deltas[pose] = by_seed[NOISE_SEEDS[0]]
             if len(by_seed) > 1:
                 noise[pose] = float(np.linalg.norm(by_seed[NOISE_SEEDS[0]] - by_seed[NOISE_SEEDS[1]]))

@@ -173,13 +173,16 @@ def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str]
                 "offset_mean": v_src + mean_offsets[(kind, bkey)],
             }
             n_true = vertex_normals(truth, faces)
-            seen: dict[int, dict] = {}  # an ungated output is the gated one when the gate is open: measured once
+            # equal predictions measured once: an ungated output is the gated one when the gate is open, and a face
+            # or finger pose's mean, nearest and raw outputs are often the source itself
+            seen: list[tuple[np.ndarray, dict]] = []
             for name, pred in preds.items():
-                if id(pred) not in seen:
+                e = next((m for q, m in seen if q is pred or np.array_equal(q, pred)), None)
+                if e is None:
                     e = mesh_errors(pred, truth, v_src)
                     e["normal"] = normal_consistency(vertex_normals(pred, faces), n_true)
-                    seen[id(pred)] = e
-                key_per.setdefault((kind, pose_key(p), name), []).append(dict(seen[id(pred)]))
+                    seen.append((pred, e))
+                key_per.setdefault((kind, pose_key(p), name), []).append(dict(e))
             if p.identity == example_identity and (p.pose in EXAMPLE_POSES or kind == "skinning_to_skinning_plus_blendshape"
                                                    and p.pose == "elbowBentLf"):
                 examples[(kind, pose_key(p))] = {"source": v_src, "truth": truth,

@@ -179,7 +179,7 @@ class MotionDecoder(nn.Module):
         for k, layer in enumerate([None, *self.hidden]):
             if layer is not None:
                 h = layer(h)
-            h = torch.nn.functional.silu(h * (1.0 + film[:, :, k, 0]) + film[:, :, k, 1])
+            h = torch.nn.functional.silu(torch.addcmul(film[:, :, k, 1], h, 1.0 + film[:, :, k, 0]))  # one pass
         return self.out(h)
 
     def forward(self, v_src: torch.Tensor, coords: torch.Tensor, frames: torch.Tensor, normals: torch.Tensor,
