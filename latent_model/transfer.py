@@ -387,7 +387,7 @@ class Transfer:
             label = s.split(":", 1)[1]
             person = label.split("@")[0]
         fields = self.correctives
-        note = fields.available(mesh.vertices, mesh.faces)
+        note = mesh.cache("corrective_note", f"fields:{id(fields)}", lambda: fields.available(mesh.vertices, mesh.faces))
         if example is not None and not example and note is None:
             note = ("no corrective read from the example pair: the corrective fields follow anny's topology by vertex "
                     "index, and the example's meshes are not it (or hold no corrective)")

@@ -170,3 +170,25 @@ def test_the_mesh_transfer_shared_among_processes_gives_the_one_process_metrics(
     for key, figs in ex_one.items():
         for name, v in figs.items():
             np.testing.assert_allclose(ex_two[key][name], v, atol=1e-6)
+
+
+def test_resamplings_are_kept_on_disk_and_read_back(tiny_corpus, tmp_path, monkeypatch):
+    from latent_model.analysis.latent_space import SampleCache
+    from latent_model.analysis.sample_cache import KeptSampleCache
+
+    s = tiny_corpus.state(0, None, "neutral")
+    points, values = KeptSampleCache(tiny_corpus, tmp_path).get(s, 1)
+    fresh = SampleCache(tiny_corpus).get(s, 1)
+    np.testing.assert_array_equal(points, fresh[0])
+    np.testing.assert_array_equal(values, fresh[1])
+    kept = KeptSampleCache(tiny_corpus, tmp_path)
+    assert kept.path(s, 1).exists() and not kept.path(s, 2).exists()
+    monkeypatch.setattr(type(tiny_corpus), "resample_sdf", lambda *a, **k: pytest.fail("re-sampled a kept state"))
+    back = kept.get(s, 1)
+    np.testing.assert_array_equal(back[0], points)
+    np.testing.assert_array_equal(back[1], values)
+    monkeypatch.undo()
+    kept.path(s, 1).write_bytes(b"torn")  # an unreadable file is sampled again and rewritten
+    again = KeptSampleCache(tiny_corpus, tmp_path).get(s, 1)
+    np.testing.assert_array_equal(again[1], values)
+    assert np.load(kept.path(s, 1))["values"].shape == values.shape

@@ -52,11 +52,10 @@ def map_characters(fn: Callable[..., Any], items: Iterable, transfer, workers: i
 
 
 def _init_worker(transfer, corpus_path: str | None, shared: Any) -> None:
-    import torch
-
     from latent_model.corpus.store import Corpus
+    from latent_model.runtime import single_threaded
 
-    torch.set_num_threads(1)
+    single_threaded()
     _WORKER.update(transfer=transfer, corpus=None if corpus_path is None else Corpus(corpus_path), shared=shared)
 
 

@@ -45,7 +45,8 @@ def add_arguments(p) -> None:
     p.add_argument("--transfer-ids", type=int, default=0, help="held-out identities in the mesh analysis (0 = all)")
     p.add_argument("--fresh-caches", "--fresh-baselines", dest="fresh_caches", action="store_true",
                    help="recompute what depends on the corpus alone and is kept in $LRR_DATA/cache: the no-learning "
-                        "baselines (cache/baselines) and the evaluated meshes' surface features (cache/surface)")
+                        "baselines (cache/baselines), the evaluated meshes' surface features (cache/surface) and the "
+                        "SDF re-samplings of the noise-floor analyses (cache/samples)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes sharing each analysis' characters (default: up to 2, one per core)")
     p.add_argument("--detail", help="local detail file (default: detail.safetensors beside the checkpoint, if any)")
@@ -77,6 +78,7 @@ def run_cli(args) -> None:
                    transfer_ids=args.transfer_ids, progress=not args.quiet,
                    baseline_cache=None if args.fresh_caches else data_root() / "cache" / "baselines",
                    surface_cache=None if args.fresh_caches else data_root() / "cache" / "surface",
+                   sample_cache=None if args.fresh_caches else data_root() / "cache" / "samples",
                    workers=args.workers, detail=Path(args.detail) if args.detail else None,
                    correctives=Path(args.correctives) if args.correctives else None)
     print(f"report written to {out} in {time.perf_counter() - t:.0f} s")
@@ -231,10 +233,12 @@ def baseline_analyses(corpus, samples, say, cache: Path | None) -> tuple[dict, d
 
 def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Path, transfer_ids: int = 0,
              progress: bool = True, baseline_cache: Path | None = None, workers: int | None = None,
-             detail: Path | None = None, correctives: Path | None = None, surface_cache: Path | None = None) -> Path:
+             detail: Path | None = None, correctives: Path | None = None, surface_cache: Path | None = None,
+             sample_cache: Path | None = None) -> Path:
     """`lrr evaluate`: every analysis into out/ (report.md, metrics.json, figures). `baseline_cache`: a directory
     keeping the model-independent baselines between evaluations (`baseline_analyses`; None: computed each time);
-    `surface_cache` the same for the surface features of the evaluated corpus meshes (`surface_cache.py`).
+    `surface_cache` the same for the surface features of the evaluated corpus meshes (`surface_cache.py`),
+    `sample_cache` for the SDF re-samplings of the noise-floor analyses (`sample_cache.KeptSampleCache`).
     `workers`: processes sharing each analysis' characters (None: one per core, at most 2). `detail`: the
     local detail file (None: the checkpoint's `detail.safetensors` if there is one), in every prediction;
     `correctives` the same for the corrective fields."""
@@ -242,6 +246,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
 
     resolve_workers(workers, 1)  # a bad count fails before any work
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
+    from latent_model.analysis.sample_cache import KeptSampleCache
     from latent_model.analysis.sources import model_source
     from latent_model.analysis.decoder_eval import evaluate_decoder
     from latent_model.analysis.transfer_eval import evaluate_transfer
@@ -266,7 +271,7 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     corpus = Corpus(corpus_dir or default_corpus_dir(preset.name))
     check_corpus_matches(meta, checkpoint, corpus)
     out.mkdir(parents=True, exist_ok=True)
-    samples = SampleCache(corpus)
+    samples = SampleCache(corpus) if sample_cache is None else KeptSampleCache(corpus, sample_cache)
     test = corpus.split_indices("test")
     singles = single_poses(tuple(corpus.poses))
 

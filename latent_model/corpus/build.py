@@ -40,11 +40,10 @@ class BuildResult:
 
 def init_generator_worker() -> None:
     """One rig state generator per worker process, one thread each (`generator()` returns it)."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import torch
-
-    torch.set_num_threads(1)
     from latent_model.corpus.states import StateGenerator
+    from latent_model.runtime import single_threaded
+
+    single_threaded()
 
     _WORKER["gen"] = StateGenerator()
 

@@ -96,5 +96,7 @@ def _map(fn, jobs: list, workers: int):
         return map(fn, jobs)
     import multiprocessing as mp
 
-    with mp.get_context("spawn").Pool(workers) as pool:
+    from latent_model.runtime import single_threaded
+
+    with mp.get_context("spawn").Pool(workers, initializer=single_threaded) as pool:
         return pool.map(fn, jobs, chunksize=4)
