@@ -46,3 +46,22 @@ def test_normal_consistency():
     n = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
     assert normal_consistency(n, n) == 1.0
     assert normal_consistency(n, -n) == -1.0
+
+
+def test_vertex_normals_of_shared_faces_are_the_corpus_ones():
+    import trimesh
+
+    from latent_model.analysis.metrics import VertexNormals
+    from latent_model.corpus.sdf import vertex_normals
+
+    m = trimesh.creation.icosphere(subdivisions=2)
+    normals = VertexNormals(m.faces)
+    rng = np.random.default_rng(0)
+    for v in (m.vertices, m.vertices * [1.0, 2.0, 0.5] + rng.normal(0, 0.01, m.vertices.shape)):
+        got = normals(v)
+        assert got.dtype == np.float32 and got.shape == v.shape
+        np.testing.assert_allclose(got, vertex_normals(v, m.faces), atol=1e-6)
+    # outward on a sphere; a vertex no triangle uses gets none
+    assert (np.sum(normals(m.vertices) * m.vertices, axis=1) > 0.99).all()
+    extra = np.vstack([m.vertices, [[0.0, 0.0, 5.0]]])
+    assert np.array_equal(normals(extra)[-1], np.zeros(3, np.float32))

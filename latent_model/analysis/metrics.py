@@ -72,6 +72,32 @@ def edge_strain(pred: np.ndarray, truth: np.ndarray, source: np.ndarray, faces: 
     return float(np.abs(lp - lt).sum() / max(lt.sum(), 1e-12) * 100)
 
 
+class VertexNormals:
+    """Unit area-weighted vertex normals (V, 3) float32 of meshes sharing one triangle list (F, 3): what
+    `corpus.sdf.vertex_normals` computes, with each face's normal summed onto its corners by one sparse product made
+    once. The transfer analysis takes the normals of ~1800 predictions per character: half the time (4 ms, was 8)."""
+
+    def __init__(self, faces: np.ndarray) -> None:
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self._sums: dict[int, object] = {}  # vertex count -> (V, F) sparse corner sum
+
+    def __call__(self, vertices: np.ndarray) -> np.ndarray:
+        import scipy.sparse as sp
+
+        v, f = np.asarray(vertices, dtype=np.float64), self.faces
+        if len(v) not in self._sums:
+            self._sums[len(v)] = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
+                                               shape=(len(v), len(f)))
+        a, b = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+        fn = np.empty_like(a)  # a x b, |a x b| = twice the area (np.cross is slower on (F, 3))
+        fn[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+        fn[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+        fn[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+        acc = self._sums[len(v)] @ fn
+        length = np.sqrt((acc * acc).sum(axis=1, keepdims=True))
+        return np.divide(acc, length, out=np.zeros_like(acc), where=length > 0).astype(np.float32)
+
+
 def normal_consistency(pred_normals: np.ndarray, true_normals: np.ndarray) -> float:
     """Mean cosine between predicted and true unit vertex normals."""
     return float(np.mean(np.sum(pred_normals * true_normals, axis=1)))

@@ -16,12 +16,11 @@ from typing import Callable
 
 import numpy as np
 
-from latent_model.analysis.metrics import mesh_errors, normal_consistency
+from latent_model.analysis.metrics import VertexNormals, mesh_errors, normal_consistency
 from latent_model.analysis.parallel import map_characters
 from latent_model.corpus.pairs import Pair, enumerate_pairs
 from latent_model.types import PAIR_KINDS
 from latent_model.corpus.poses import get_pose
-from latent_model.corpus.sdf import vertex_normals
 from latent_model.corpus.store import Corpus
 from latent_model.surface_cache import state_features
 
@@ -130,6 +129,7 @@ def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str]
     """The pairs of one identity: ({(kind, pose): {(kind, pose key, strategy): [metrics]}}, the same of gates,
     examples)."""
     faces = corpus.faces
+    vertex_normals = VertexNormals(faces)
     prepared: dict[int, object] = {}
     neutrals: dict[int, object] = {}
     per: dict = {}
@@ -172,7 +172,7 @@ def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str]
                 "offset_nearest": v_src + offset_nearest,
                 "offset_mean": v_src + mean_offsets[(kind, bkey)],
             }
-            n_true = vertex_normals(truth, faces)
+            n_true = vertex_normals(truth)
             # equal predictions measured once: an ungated output is the gated one when the gate is open, and a face
             # or finger pose's mean, nearest and raw outputs are often the source itself
             seen: list[tuple[np.ndarray, dict]] = []
@@ -180,7 +180,7 @@ def _evaluate_pairs(transfer, corpus: Corpus, pairs_by_key: dict[tuple[str, str]
                 e = next((m for q, m in seen if q is pred or np.array_equal(q, pred)), None)
                 if e is None:
                     e = mesh_errors(pred, truth, v_src)
-                    e["normal"] = normal_consistency(vertex_normals(pred, faces), n_true)
+                    e["normal"] = normal_consistency(vertex_normals(pred), n_true)
                     seen.append((pred, e))
                 key_per.setdefault((kind, pose_key(p), name), []).append(dict(e))
             if p.identity == example_identity and (p.pose in EXAMPLE_POSES or kind == "skinning_to_skinning_plus_blendshape"
