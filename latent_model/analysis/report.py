@@ -485,7 +485,8 @@ def _markdown(m: dict, lat: dict, singles: list[str], figs: dict, ex_figs: list,
             "mean / nearest / oracle are what the Transfer API returns: the decoder's displacement scaled by the noise "
             "gate (0 when the conditioning delta is under 1.5x its sampling noise, 1 above 3x; the noise is the latent "
             "noise floor for one character's delta, the floor over sqrt(N) for the mean of N). `*_raw` is the "
-            "vertex decoder's own output, ungated (the same decoder call).", ""]
+            "predictor's own output, ungated (the same decoder call; a face or finger pose that the local detail stage "
+            "moves alone is not read by the body decoder, so its raw output is the detail stage's, ungated).", ""]
     strategies = ("mean", "nearest", "oracle", "mean_raw", "nearest_raw", "no_motion", "offset_nearest", "offset_mean")
     for kind in PAIR_KINDS:
         rows = []
