@@ -17,7 +17,7 @@ LAYERS = {
     "latent_model.surface": ("latent_model.topology",),  # geometry of any mesh: numpy, scipy, libigl only
     "latent_model.render": (),
     "latent_model.corpus": ("latent_model.corpus", "latent_model.types", "latent_model.atomic", "latent_model.errors",
-                            "latent_model.render", "latent_model.topology"),
+                            "latent_model.render", "latent_model.topology", "latent_model.runtime"),
     "latent_model.config": ("latent_model.corpus.config", "latent_model.types"),
     "latent_model.nn": ("latent_model.nn", "latent_model.config", "latent_model.types", "latent_model.errors",
                         "latent_model.topology"),
