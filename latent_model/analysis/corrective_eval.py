@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import mesh_errors
-from latent_model.analysis.parallel import map_characters
+from latent_model.analysis.parallel import Batch, Workers, submit_characters
 from latent_model.corpus.identities import IdentitySpec
 
 KIND = "skinning_to_skinning_plus_blendshape"
@@ -24,18 +24,29 @@ TARGET_JOINTS = ("elbow", "knee", "shoulder")  # the issue's target: explained >
 
 
 def evaluate_correctives(transfer, specs: list[IdentitySpec], say: Callable[[str], None] = print,
-                         workers: int = 1) -> dict:
+                         workers: "int | Workers" = 1) -> dict:
     """Metrics `correctives.*` of `transfer`'s corrective fields on the characters `specs` (held out); {} without.
-    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics)."""
+    `workers`: processes sharing the characters (`parallel.submit_characters`: a count or a running `Workers`; the
+    same metrics)."""
+    return submit_correctives(transfer, specs, say, workers).get()
+
+
+def submit_correctives(transfer, specs: list[IdentitySpec], say: Callable[[str], None] = print,
+                       workers: "int | Workers" = 1) -> Batch:
+    """`evaluate_correctives`' characters queued on `workers`: `get()` returns its metrics."""
     if transfer.correctives is None:
-        return {}
+        return submit_characters(_group, [], transfer, 1, then=lambda _: {})
     t0 = time.time()
-    rows: dict[tuple[str, str, str], list] = {}
-    for part in map_characters(_group, example_groups(specs), transfer, workers):
-        for key, r in part.items():
-            rows.setdefault(key, []).extend(r)
-    say(f"  correctives: {len(specs)} characters ({time.time() - t0:.0f} s)")
-    return summarise(rows)
+
+    def summary(parts: list[dict]) -> dict:
+        rows: dict[tuple[str, str, str], list] = {}
+        for part in parts:
+            for key, r in part.items():
+                rows.setdefault(key, []).extend(r)
+        say(f"  correctives: {len(specs)} characters ({time.time() - t0:.0f} s)")
+        return summarise(rows)
+
+    return submit_characters(_group, example_groups(specs), transfer, workers, then=summary)
 
 
 def example_groups(specs: list[IdentitySpec]) -> list[tuple[IdentitySpec, ...]]:

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import edge_strain, mesh_errors
-from latent_model.analysis.parallel import map_characters
+from latent_model.analysis.parallel import Batch, Workers, submit_characters
 from latent_model.corpus.poses import JointRotation, PoseConfig
 from latent_model.corpus.store import Corpus
 from latent_model.surface_cache import state_features
@@ -251,36 +251,49 @@ def _character(transfer, corpus: Corpus, shared: tuple, item: tuple) -> dict:
 
 
 def evaluate_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None,
-                     workers: int = 1, surface_cache: Path | None = None) -> dict:
+                     workers: "int | Workers" = 1, surface_cache: Path | None = None) -> dict:
     """Every analysis above on the test characters `ids` (rests: all of them; the others: those in bind).
-    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics); `surface_cache`: where
-    the characters' surface features are kept (None: computed)."""
+    `workers`: processes sharing the characters (`parallel.submit_characters`: a count or a running `Workers`; the
+    same metrics); `surface_cache`: where the characters' surface features are kept (None: computed)."""
+    return submit_decoder(transfer, corpus, ids, say, workers, surface_cache).get()
+
+
+def submit_decoder(transfer, corpus: Corpus, ids: list[int], say: Callable[[str], None] = lambda _: None,
+                   workers: "int | Workers" = 1, surface_cache: Path | None = None) -> Batch:
+    """`evaluate_decoder`'s characters queued on `workers` (the example pairs made here first), the bind ones
+    first (they also sweep blends, magnitudes and example pairs: the queue ends on the short ones); `get()`
+    returns its metrics."""
     from latent_model.corpus.build import generator
 
     chars = Characters(transfer, corpus)
     bind = [i for i in ids if corpus.identities[i].rest == "bind"]
     magnitudes = {"elbowBentLf", "elbowSuperBentLf"} <= set(corpus.poses)
     pairs = _example_pairs(transfer, chars, bind, generator()) if len(bind) >= 2 else []
+    order = sorted(ids, key=lambda i: i not in bind)
     items = [(i, i in bind, [(name, delta, truth[corpus.identities[i].id]) for name, _, delta, truth in pairs
-                             if i in bind[1:]]) for i in ids]
+                             if i in bind[1:]]) for i in order]
     say(f"decoder: broad poses in every rest ({len(ids)} characters), blends, magnitudes, "
         f"{len(pairs)} example pairs, out-of-distribution check")
-    parts = map_characters(_character, items, transfer, workers, corpus,
-                           (_broad(chars), _blends(chars), magnitudes, surface_cache))
-    by_rest: dict[str, list[dict]] = {}
-    for i, part in zip(ids, parts):
-        by_rest.setdefault(corpus.identities[i].rest, []).append(part["rest"])
-    out = _rest_summary(by_rest)
-    binds = [p for p in parts if "blend" in p]
-    out.update(_blend_summary({ab: [p["blend"][ab] for p in binds] for ab in _blends(chars)}))
-    if magnitudes:
-        out.update(_magnitude_summary([p["magnitude"] for p in binds]))
-    if pairs:
-        out.update(_example_summary(pairs, {name: [p["examples"][name] for p in binds if name in p["examples"]]
-                                            for name, _, _, _ in pairs}))
-    out.update(_novelty_summary(transfer.bank.ood_threshold, [p["novelty"][0] for p in parts],
-                                [p["novelty"][1] for p in binds], SCALES))
-    return out
+
+    def summary(done: list[dict]) -> dict:
+        parts = [done[order.index(i)] for i in ids]  # back in the characters' order: the same sums
+        by_rest: dict[str, list[dict]] = {}
+        for i, part in zip(ids, parts):
+            by_rest.setdefault(corpus.identities[i].rest, []).append(part["rest"])
+        out = _rest_summary(by_rest)
+        binds = [p for p in parts if "blend" in p]
+        out.update(_blend_summary({ab: [p["blend"][ab] for p in binds] for ab in _blends(chars)}))
+        if magnitudes:
+            out.update(_magnitude_summary([p["magnitude"] for p in binds]))
+        if pairs:
+            out.update(_example_summary(pairs, {name: [p["examples"][name] for p in binds if name in p["examples"]]
+                                                for name, _, _, _ in pairs}))
+        out.update(_novelty_summary(transfer.bank.ood_threshold, [p["novelty"][0] for p in parts],
+                                    [p["novelty"][1] for p in binds], SCALES))
+        return out
+
+    return submit_characters(_character, items, transfer, workers, corpus,
+                             (_broad(chars), _blends(chars), magnitudes, surface_cache), summary)
 
 
 def _f(v: float, digits: int = 2) -> str:

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from latent_model.analysis.metrics import STATIC_MM, cosine_stats, mesh_errors
-from latent_model.analysis.parallel import map_characters
+from latent_model.analysis.parallel import Batch, Workers, submit_characters
 from latent_model.corpus.identities import IdentitySpec
 from latent_model.corpus.poses import get_pose
 from latent_model.detail_poses import detail_regions_of
@@ -49,34 +49,45 @@ def asymmetry_mm(displacement: np.ndarray, mirror: np.ndarray, where: np.ndarray
 
 
 def evaluate_detail(transfer, specs: list[IdentitySpec], poses: tuple[str, ...], noise_persons: int = 4,
-                    say: Callable[[str], None] = print, workers: int = 1) -> tuple[dict, dict]:
+                    say: Callable[[str], None] = print, workers: "int | Workers" = 1) -> tuple[dict, dict]:
     """(metrics `detail.*`, figure data) of `transfer`'s local detail stage on the characters `specs` (held out
     from its training); figure data: {"example": {source, mean, nearest, truth: (V, 3)}, "region": head vertex
     indices, "faces", "title"} of FIGURE_POSE on the first character. ({}, {}) without a detail stage.
-    `workers`: processes sharing the characters (`parallel.map_characters`; the same metrics)."""
+    `workers`: processes sharing the characters (`parallel.submit_characters`: a count or a running `Workers`; the
+    same metrics)."""
+    return submit_detail(transfer, specs, poses, noise_persons, say, workers).get()
+
+
+def submit_detail(transfer, specs: list[IdentitySpec], poses: tuple[str, ...], noise_persons: int = 4,
+                  say: Callable[[str], None] = print, workers: "int | Workers" = 1) -> Batch:
+    """`evaluate_detail`'s characters queued on `workers`: `get()` returns its (metrics, figure data)."""
     if transfer.detail is None:
-        return {}, {}
+        return submit_characters(_character, [], transfer, 1, then=lambda _: ({}, {}))
     singles = detail_poses(poses)
     wanted = singles + ([SYMMETRIC_POSE] if SYMMETRIC_POSE in poses else [])
-    deltas: dict[str, list] = {p: [] for p in singles}
-    noise: dict[str, list] = {p: [] for p in singles}
-    mesh: dict[tuple[str, str, str], list] = {}
-    asym: dict[str, list] = {"pred": [], "truth": []}
-    figure: dict = {}
     t0 = time.time()
-    parts = map_characters(_character, enumerate(specs), transfer, workers, shared=(wanted, noise_persons))
-    for c_deltas, c_noise, c_mesh, c_asym, c_figure in parts:
-        for p, d in c_deltas.items():
-            deltas[p].append(d)
-        for p, x in c_noise.items():
-            noise[p].append(x)
-        for key, rows in c_mesh.items():
-            mesh.setdefault(key, []).extend(rows)
-        for k, x in c_asym.items():
-            asym[k].append(x)
-        figure = figure or c_figure
-    say(f"  local detail: {len(specs)} characters ({time.time() - t0:.0f} s)")
-    return _summarise(deltas, noise, mesh, asym), figure
+
+    def summary(parts: list[tuple]) -> tuple[dict, dict]:
+        deltas: dict[str, list] = {p: [] for p in singles}
+        noise: dict[str, list] = {p: [] for p in singles}
+        mesh: dict[tuple[str, str, str], list] = {}
+        asym: dict[str, list] = {"pred": [], "truth": []}
+        figure: dict = {}
+        for c_deltas, c_noise, c_mesh, c_asym, c_figure in parts:
+            for p, d in c_deltas.items():
+                deltas[p].append(d)
+            for p, x in c_noise.items():
+                noise[p].append(x)
+            for key, rows in c_mesh.items():
+                mesh.setdefault(key, []).extend(rows)
+            for k, x in c_asym.items():
+                asym[k].append(x)
+            figure = figure or c_figure
+        say(f"  local detail: {len(specs)} characters ({time.time() - t0:.0f} s)")
+        return _summarise(deltas, noise, mesh, asym), figure
+
+    return submit_characters(_character, enumerate(specs), transfer, workers, shared=(wanted, noise_persons),
+                             then=summary)
 
 
 def _character(transfer, _corpus, shared: tuple, item: tuple[int, IdentitySpec]) -> tuple:

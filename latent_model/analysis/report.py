@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from latent_model.analysis.parallel import resolve_workers
+from latent_model.analysis.parallel import Workers, resolve_workers
 
 # The paper's numbers (Tables 2-3, sections 6.2 and 7), shown beside ours.
 PAPER = {
@@ -121,20 +121,22 @@ def evaluate_detail_only(checkpoint: Path, bank: Path, detail: Path | None, spli
     characters -> out/detail.md, detail.json. `workers`: processes sharing the characters (None: one per core,
     at most 2)."""
     from latent_model.analysis import corrective_eval
-    from latent_model.analysis.detail_eval import evaluate_detail, markdown
+    from latent_model.analysis.detail_eval import markdown, submit_detail
     from latent_model.atomic import atomic_write_json, atomic_write_text
 
     say = print if progress else (lambda _m: None)
     transfer, preset = _detail_transfer(checkpoint, bank, detail, correctives)
     specs = detail_characters(preset, split, per_rest)
-    workers = resolve_workers(workers, len(specs))
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    m, fig = evaluate_detail(transfer, specs, preset.corpus.pose_names(), say=say, workers=workers)
-    m["timing.detail_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    m.update(corrective_eval.evaluate_correctives(transfer, specs, say=say, workers=workers))
-    m["timing.correctives_s"] = time.perf_counter() - t
+    # both analyses' characters on one set of processes, queued together (`parallel.Workers`)
+    with Workers(transfer, None, resolve_workers(workers, len(specs))) as pool:
+        detail_batch = submit_detail(transfer, specs, preset.corpus.pose_names(), say=say, workers=pool)
+        corrective_batch = corrective_eval.submit_correctives(transfer, specs, say=say, workers=pool)
+        m, fig = detail_batch.get()
+        m["timing.detail_s"] = time.perf_counter() - t
+        m.update(corrective_batch.get())
+        m["timing.correctives_s"] = time.perf_counter() - t  # the two overlap: each from the start
     m["meta.detail_characters"] = [s.id for s in specs]
     atomic_write_json(out / "detail.json", m)
     text = f"# Local detail ({split} characters: {', '.join(s.id for s in specs)})\n\n"
@@ -248,8 +250,10 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     from latent_model.analysis.latent_space import SampleCache, analysis_identities, latent_analyses, single_poses
     from latent_model.analysis.sample_cache import KeptSampleCache
     from latent_model.analysis.sources import model_source
-    from latent_model.analysis.decoder_eval import evaluate_decoder
-    from latent_model.analysis.transfer_eval import evaluate_transfer
+    from latent_model.analysis.corrective_eval import submit_correctives
+    from latent_model.analysis.decoder_eval import submit_decoder
+    from latent_model.analysis.detail_eval import submit_detail
+    from latent_model.analysis.transfer_eval import submit_transfer
     from latent_model.bank import LatentBank
     from latent_model.config import default_corpus_dir
     from latent_model.corpus.poses import get_pose
@@ -275,21 +279,6 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     test = corpus.split_indices("test")
     singles = single_poses(tuple(corpus.poses))
 
-    say("latent analyses of the model")
-    t = time.perf_counter()
-    sources = {"model": model_source(model, bank, samples)}
-    lat = {}
-    figdata = {}
-    lat["model"], figdata["model"] = latent_analyses(sources["model"], corpus, progress=say)
-    timings["latent_model_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    base_lat, base_fig, cached = baseline_analyses(corpus, samples, say, baseline_cache)
-    lat.update(base_lat)
-    figdata.update(base_fig)
-    timings["latent_baselines_s"] = time.perf_counter() - t
-
-    say("mesh transfer on held-out identities")
-    t = time.perf_counter()
     from latent_model.corrective_fields import CorrectiveFields, correctives_beside
     from latent_model.detail import LocalDetailModel, detail_beside
 
@@ -300,60 +289,78 @@ def evaluate(checkpoint: Path, bank_path: Path, corpus_dir: Path | None, out: Pa
     # every pair kind and pose on the test persons in bind; the other rests in the decoder's analyses
     bind = [i for i in test if corpus.identities[i].rest == "bind"]
     ids = bind[:transfer_ids] if transfer_ids else bind
-    tm, examples = evaluate_transfer(transfer, corpus, ids, progress=progress,
-                                     workers=resolve_workers(workers, len(ids)), surface_cache=surface_cache)
-    names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network", "pose_fields": "pose fields",
-             "correctives": "corrective fields"}
-    tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
-    timings["transfer_s"] = time.perf_counter() - t
-    t = time.perf_counter()
     persons = {corpus.identities[i].person_id for i in ids}
     held = [i for i in test if corpus.identities[i].person_id in persons]
-    tm.update(evaluate_decoder(transfer, corpus, held, say, resolve_workers(workers, len(held)), surface_cache))
-    timings["decoder_s"] = time.perf_counter() - t
-    if transfer.detail is not None:
-        from latent_model.analysis.detail_eval import evaluate_detail
-
-        say("local detail (faces, fingers) on the held-out characters, every rest")
+    # one set of processes for every analysis, queued one behind the other; this process meanwhile runs the latent
+    # analyses, prepares the next analyses and draws the figures (stages overlap: each timing is from its start)
+    with Workers(transfer, corpus, resolve_workers(workers, len(ids))) as pool:
+        say("mesh transfer on held-out identities (queued; the latent analyses meanwhile)")
+        t_transfer = time.perf_counter()
+        transfer_batch = submit_transfer(transfer, corpus, ids, progress=progress, workers=pool,
+                                         surface_cache=surface_cache)
+        say("latent analyses of the model")
         t = time.perf_counter()
-        held = detail_characters(preset, "test", DETAIL_PER_REST)
-        dm, detail_fig = evaluate_detail(transfer, held, preset.corpus.pose_names(), say=say,
-                                         workers=resolve_workers(workers, len(held)))
-        tm.update(dm)
-        tm["meta.detail_characters"] = [s.id for s in held]
-        timings["detail_s"] = time.perf_counter() - t
-    if transfer.correctives is not None:
-        from latent_model.analysis.corrective_eval import evaluate_correctives
-
-        say("corrective fields on the held-out characters, every rest")
+        sources = {"model": model_source(model, bank, samples)}
+        lat = {}
+        figdata = {}
+        lat["model"], figdata["model"] = latent_analyses(sources["model"], corpus, progress=say)
+        timings["latent_model_s"] = time.perf_counter() - t
         t = time.perf_counter()
-        held = detail_characters(preset, "test", DETAIL_PER_REST)
-        tm.update(evaluate_correctives(transfer, held, say=say, workers=resolve_workers(workers, len(held))))
-        timings["correctives_s"] = time.perf_counter() - t
+        base_lat, base_fig, cached = baseline_analyses(corpus, samples, say, baseline_cache)
+        lat.update(base_lat)
+        figdata.update(base_fig)
+        timings["latent_baselines_s"] = time.perf_counter() - t
+        tm, examples = transfer_batch.get()
+        names = {"motion": "motion decoder (decoder v2)", "network": "vertex decoder network",
+                 "pose_fields": "pose fields", "correctives": "corrective fields"}
+        tm.update({f"transfer.{k}.predictor": names[transfer.predicts_with(k)] for k in PAIR_KINDS})
+        timings["transfer_s"] = time.perf_counter() - t_transfer
 
-    say("figures")
-    t = time.perf_counter()
-    figs = {
-        "identity": figures.identity_matrices(figdata, out / "identity_distances.png"),
-        "cosine": figures.cosine_heatmaps(figdata["model"], out / "pose_cosines.png", "model"),
-        "noise": figures.noise_floor(figdata, out / "noise_floor.png"),
-        "entanglement": figures.entanglement(figdata["model"], out / "entanglement.png", "model"),
-        "bars": figures.pose_consistency_bars(lat, singles, out / "pose_consistency.png"),
-    }
-    ex_figs = []
-    faces = corpus.faces
-    for (kind, pose), ex in sorted(examples.items()):
-        name = f"transfer_{kind}_{pose}".replace("+", "_").replace("@", "_from_")
-        view = "side" if pose.startswith("knee") else "front"
-        crop = None
-        if get_pose(pose.split("@")[0]).group == "face":  # zoom on the head
-            top = ex["truth"][:, 2].max()
-            crop = np.array([[-0.2, -1.0, top - 0.3], [0.2, 1.0, top + 0.01]])
-        ex_figs.append((kind, pose, figures.transfer_example(ex, faces, f"{corpus.identities[ids[0]].id} {kind} {pose}",
-                                                             out / f"{name}.png", view, crop)))
-    if transfer.detail is not None and detail_fig:
-        figs["detail"] = _detail_figure(detail_fig, out)
-    timings["figures_s"] = time.perf_counter() - t
+        t_rest = time.perf_counter()
+        local = detail_characters(preset, "test", DETAIL_PER_REST)
+        detail_batch = corrective_batch = None
+        if transfer.detail is not None:
+            say("local detail (faces, fingers) on the held-out characters, every rest (queued)")
+            detail_batch = submit_detail(transfer, local, preset.corpus.pose_names(), say=say, workers=pool)
+        if transfer.correctives is not None:
+            say("corrective fields on the held-out characters, every rest (queued)")
+            corrective_batch = submit_correctives(transfer, local, say=say, workers=pool)
+        decoder_batch = submit_decoder(transfer, corpus, held, say, pool, surface_cache)
+
+        say("figures")
+        t = time.perf_counter()
+        figs = {
+            "identity": figures.identity_matrices(figdata, out / "identity_distances.png"),
+            "cosine": figures.cosine_heatmaps(figdata["model"], out / "pose_cosines.png", "model"),
+            "noise": figures.noise_floor(figdata, out / "noise_floor.png"),
+            "entanglement": figures.entanglement(figdata["model"], out / "entanglement.png", "model"),
+            "bars": figures.pose_consistency_bars(lat, singles, out / "pose_consistency.png"),
+        }
+        ex_figs = []
+        faces = corpus.faces
+        for (kind, pose), ex in sorted(examples.items()):
+            name = f"transfer_{kind}_{pose}".replace("+", "_").replace("@", "_from_")
+            view = "side" if pose.startswith("knee") else "front"
+            crop = None
+            if get_pose(pose.split("@")[0]).group == "face":  # zoom on the head
+                top = ex["truth"][:, 2].max()
+                crop = np.array([[-0.2, -1.0, top - 0.3], [0.2, 1.0, top + 0.01]])
+            ex_figs.append((kind, pose, figures.transfer_example(ex, faces, f"{corpus.identities[ids[0]].id} {kind} {pose}",
+                                                                 out / f"{name}.png", view, crop)))
+        timings["figures_s"] = time.perf_counter() - t
+
+        if detail_batch is not None:
+            dm, detail_fig = detail_batch.get()
+            tm.update(dm)
+            tm["meta.detail_characters"] = [s.id for s in local]
+            timings["detail_s"] = time.perf_counter() - t_rest
+            if detail_fig:
+                figs["detail"] = _detail_figure(detail_fig, out)
+        if corrective_batch is not None:
+            tm.update(corrective_batch.get())
+            timings["correctives_s"] = time.perf_counter() - t_rest
+        tm.update(decoder_batch.get())
+        timings["decoder_s"] = time.perf_counter() - t_rest
 
     metrics: dict = dict(lat["model"])
     metrics.update(tm)

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from latent_model.analysis.metrics import VertexNormals, mesh_errors, normal_consistency
-from latent_model.analysis.parallel import map_characters
+from latent_model.analysis.parallel import Batch, Workers, submit_characters
 from latent_model.corpus.pairs import Pair, enumerate_pairs
 from latent_model.types import PAIR_KINDS
 from latent_model.corpus.poses import get_pose
@@ -53,15 +53,26 @@ def nearest_training_identity(corpus: Corpus, train: list[int]) -> Callable[[int
 
 def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str, ...] = PAIR_KINDS,
                       example_identity: int | None = None, progress: bool = True,
-                      poses: tuple[str, ...] | None = None, workers: int = 1,
+                      poses: tuple[str, ...] | None = None, workers: "int | Workers" = 1,
                       surface_cache: Path | None = None) -> tuple[dict, dict]:
     """(flat metrics `transfer.<kind>.<pose>.<strategy>.<metric>` + group means, examples for
     figures: {(kind, pose): {"source", "truth", "mean", "nearest", "oracle"}} of one identity).
     `poses`: the target poses to evaluate (default: every corpus pose). `workers` > 1: the identities are shared
-    among that many processes of one thread each (most of the work is single-threaded numpy); the metrics are
-    those of one process up to float rounding (each pair is the same computation). `surface_cache`: a directory
-    keeping the surface features of the sources the motion decoder reads (`surface_cache.state_features`; they
-    depend on the meshes alone: half the work of a first evaluation, read back by the next; None: computed)."""
+    among that many processes of one thread each (most of the work is single-threaded numpy; or a running
+    `parallel.Workers`); the metrics are those of one process up to float rounding (each pair is the same
+    computation). `surface_cache`: a directory keeping the surface features of the sources the motion decoder
+    reads (`surface_cache.state_features`; they depend on the meshes alone: half the work of a first evaluation,
+    read back by the next; None: computed)."""
+    return submit_transfer(transfer, corpus, ids, kinds, example_identity, progress, poses, workers,
+                           surface_cache).get()
+
+
+def submit_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str, ...] = PAIR_KINDS,
+                    example_identity: int | None = None, progress: bool = True,
+                    poses: tuple[str, ...] | None = None, workers: "int | Workers" = 1,
+                    surface_cache: Path | None = None) -> Batch:
+    """`evaluate_transfer`'s characters queued on `workers` (the latents encoded here first): `get()` returns
+    its (metrics, examples)."""
     from latent_model.encoding import encode_sample_sets
 
     # offsets copy only within a rest configuration (another rest's offsets start from other positions): the
@@ -88,12 +99,17 @@ def evaluate_transfer(transfer, corpus: Corpus, ids: list[int], kinds: tuple[str
                                               for j in train]), axis=0)
     shared = (mu_of_row, mean_offsets, near, example_identity, surface_cache)
     jobs = [{k: [p for p in ps if p.identity == i] for k, ps in pairs_by_key.items()} for i in ids]
-    results = map_characters(_character, jobs, transfer, workers, corpus, shared, "transfer", progress)
+    return submit_characters(_character, jobs, transfer, workers, corpus, shared,
+                             lambda results: _summarise(list(pairs_by_key), results), "transfer", progress)
+
+
+def _summarise(keys: list[tuple[str, str]], results: list[tuple[dict, dict, dict]]) -> tuple[dict, dict]:
+    """(metrics, examples) of the characters' `_character` results, the (kind, bank key)s `keys` in order."""
     # rows in the one-process order: key by key, identity by identity
     per: dict[tuple[str, str, str], list[dict]] = {}
     gates: dict[tuple[str, str, str], list[float]] = {}
     examples: dict = {}
-    for key in pairs_by_key:
+    for key in keys:
         for r_per, r_gates, _ in results:
             for k in r_per.get(key, {}):
                 per.setdefault(k, []).extend(r_per[key][k])
