@@ -74,26 +74,34 @@ def edge_strain(pred: np.ndarray, truth: np.ndarray, source: np.ndarray, faces: 
 
 class VertexNormals:
     """Unit area-weighted vertex normals (V, 3) float32 of meshes sharing one triangle list (F, 3): what
-    `corpus.sdf.vertex_normals` computes, with each face's normal summed onto its corners by one sparse product made
-    once. The transfer analysis takes the normals of ~1800 predictions per character: half the time (4 ms, was 8)."""
+    `corpus.sdf.vertex_normals` computes, with sparse products made once: two edge differences per face (gathering
+    the corners was over half the time) and each face's normal summed onto its corners. The transfer analysis takes
+    the normals of ~1800 predictions per character: a quarter of the time (2 ms, was 8)."""
 
     def __init__(self, faces: np.ndarray) -> None:
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self._sums: dict[int, object] = {}  # vertex count -> (V, F) sparse corner sum
+        self._ops: dict[int, tuple] = {}  # vertex count -> (edge 0->1, edge 0->2 (F, V), corner sum (V, F))
 
-    def __call__(self, vertices: np.ndarray) -> np.ndarray:
+    def _operators(self, n: int) -> tuple:
         import scipy.sparse as sp
 
-        v, f = np.asarray(vertices, dtype=np.float64), self.faces
-        if len(v) not in self._sums:
-            self._sums[len(v)] = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
-                                               shape=(len(v), len(f)))
-        a, b = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+        if n not in self._ops:
+            f, m = self.faces, len(self.faces)
+            rows, signs = np.repeat(np.arange(m), 2), np.tile([-1.0, 1.0], m)
+            edge = lambda k: sp.csr_matrix((signs, (rows, f[:, [0, k]].ravel())), shape=(m, n))  # noqa: E731
+            corners = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(m), 3))), shape=(n, m))
+            self._ops[n] = (edge(1), edge(2), corners)
+        return self._ops[n]
+
+    def __call__(self, vertices: np.ndarray) -> np.ndarray:
+        v = np.asarray(vertices, dtype=np.float64)
+        e1, e2, corners = self._operators(len(v))
+        a, b = e1 @ v, e2 @ v  # v1 - v0, v2 - v0: the same floats as the subtraction
         fn = np.empty_like(a)  # a x b, |a x b| = twice the area (np.cross is slower on (F, 3))
         fn[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
         fn[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
         fn[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-        acc = self._sums[len(v)] @ fn
+        acc = corners @ fn
         length = np.sqrt((acc * acc).sum(axis=1, keepdims=True))
         return np.divide(acc, length, out=np.zeros_like(acc), where=length > 0).astype(np.float32)
 
