@@ -1,5 +1,6 @@
 """Reading an example pair for the explorer (Qt-free): a character's mesh A and the same mesh deformed,
-A1, read in A's frame, both encoded through the Transfer API, and the latent delta mu(A1) - mu(A) kept.
+A1, read in A's frame, both encoded through the Transfer API, the latent delta mu(A1) - mu(A) kept and A's body
+motion read as the vocabulary's poses (`Transfer.example_body`).
 Encoding two meshes is the slow part of the feature (a second or two each), so it runs once per pair,
 as steps with progress in the model worker; the predictions that follow only read the delta."""
 from __future__ import annotations
@@ -93,5 +94,7 @@ def read_example_steps(transfer, neutral: str | Path, posed: str | Path, up: str
     if transfer.detail is not None:
         yield "encoding the example's head and hands (local detail)", 0.9
     detail = transfer.example_detail(*prepared)
+    yield "reading the example's body motion as the vocabulary's poses", 0.95
+    body = transfer.example_body(*prepared)
     novelty = transfer.novelty(prepared[0]) if transfer.bank.ood_threshold > 0 else None
-    return ExamplePair(f"{a.name} → {a1.name}", a, a1, delta, (neutral, posed), stamp, novelty, detail)
+    return ExamplePair(f"{a.name} → {a1.name}", a, a1, delta, (neutral, posed), stamp, novelty, detail, body)

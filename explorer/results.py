@@ -16,7 +16,7 @@ from explorer.framing import Framing
 from explorer.selection import Selection
 
 if TYPE_CHECKING:  # the results only carry a Novelty: importing the Transfer API (torch) is the session's job
-    from latent_model.transfer import Novelty
+    from latent_model.transfer import BodyReading, Novelty
 
 ERROR_RANGE_MM = (0.0, 40.0)  # colour range of per-vertex error for body motion (shared by every prediction view)
 DISPLACEMENT_RANGE_MM = (0.0, 80.0)  # colour range of |prediction - source| for body motion
@@ -47,7 +47,8 @@ class PairRef:
 class ExamplePair:
     """An example pair the session holds: a character's mesh A and the same mesh deformed, A1 (both in the
     model frame, A1 in A's frame), and the latent delta mu(A1) - mu(A) that conditions a prediction in
-    place of a pose's delta. Encoding is the slow part, so the delta is computed once, when it is opened."""
+    place of a pose's delta, and what its body motion reads as. Encoding and reading are the slow part, so they
+    are done once, when it is opened."""
 
     name: str  # its key among the session's example pairs: "A.obj → A1.obj"
     neutral: UserMesh  # A
@@ -57,6 +58,7 @@ class ExamplePair:
     stamp: tuple  # the files' (size, mtime) when read: the same files unchanged are not encoded again
     novelty: Novelty | None = None  # how far A is from the training states (None: the bank has no threshold)
     detail: dict[str, np.ndarray] | None = None  # {region: delta} for the local detail stage (None: no stage)
+    body: BodyReading | None = None  # its body motion read as the vocabulary's poses (Transfer.example_body)
 
     @property
     def label(self) -> str:

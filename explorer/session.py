@@ -308,7 +308,8 @@ class Session:
             out = self.transfer.predict_detail(prepared, sel.pose, strategy, sel.magnitude, sel.kind, pose_b, sel.blend)
         else:  # the example's delta is pose A's; the strategy still gives pose B's when blending
             out = self.transfer.predict_detail(prepared, None, strategy, sel.magnitude, sel.kind, pose_b, sel.blend,
-                                               delta=example.delta, detail_delta=example.detail)
+                                               delta=example.delta, detail_delta=example.detail,
+                                               body_reading=example.body)
         v = out.vertices
         dt = time.perf_counter() - t
         err = None if truth is None else np.linalg.norm(v - truth, axis=1) * 1000.0

@@ -107,9 +107,10 @@ def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: Us
     delta = transfer.example_delta(a, a1)
     target = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
     corrective = transfer.example_corrective(a, a1) if transfer.predicts_with(kind) == "correctives" else None
+    body = transfer.example_body(a, a1) if kind == "neutral_to_pose" else None
     result = _with_novelty(transfer, transfer.predict_detail(target, None, magnitude=magnitude, kind=kind, delta=delta,
                                                              detail_delta=transfer.example_detail(a, a1),
-                                                             corrective_mix=corrective), target, kind)
+                                                             corrective_mix=corrective, body_reading=body), target, kind)
     novelty = {mesh.name: result.novelty}
     if transfer.bank.ood_threshold > 0:
         novelty[neutral.name] = transfer.novelty(a)

@@ -41,9 +41,36 @@ if TYPE_CHECKING:
     from latent_model.corrective_fields import CorrectiveFields
     from latent_model.detail import LocalDetailModel
 
-__all__ = ["GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
+__all__ = ["BodyReading", "GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
 
 CORRECTIVE_KIND = "skinning_to_skinning_plus_blendshape"
+# an example pair's body motion is read as a mix of the vocabulary's body poses when the mix makes at least this
+# much of it on the example's own mesh (validation, 11 example deformations: the read transferred 0.42-0.89 where
+# it explained >= 0.40 there, the decoder's reading of the latent delta 0.20-0.88; below, -0.2 to 0: a joint or
+# axis no pose moves, where the decoder's reading stays)
+READ_MIN = 0.3
+READ_MAX, READ_DROP = 2.0, 0.05  # a pose read up to twice its own motion; a weight under READ_DROP is dropped
+
+
+@dataclass(frozen=True)
+class BodyReading:
+    """What an example pair's body motion reads as: {pose: weight} of the vocabulary's single body poses whose
+    motions on the example's own neutral mesh, mixed, best make its deformation (`Transfer.example_body`), and
+    how much of that deformation the mix makes there (1 - mean error / mean motion: 1 = all of it)."""
+
+    weights: dict[str, float]
+    explained: float
+
+    @property
+    def used(self) -> bool:
+        """Whether a prediction moves by the read (else the decoder reads the pair's latent delta)."""
+        return self.explained >= READ_MIN
+
+    def describe(self) -> str:
+        from latent_model.detail import describe_mix
+
+        mix = describe_mix(self.weights) if self.weights else "no pose"
+        return f"{mix} (makes {self.explained:.2f} of the example's motion on its own mesh)"
 
 
 class PreparedMesh:
@@ -220,6 +247,53 @@ class Transfer:
                              f"and {len(neutral.faces)} triangles, the posed {len(posed.vertices)} and {len(posed.faces)}")
         return posed.mu - neutral.mu
 
+    def body_poses(self) -> list[str]:
+        """The single body poses of the bank's neutral_to_pose deltas (the poses an example's motion reads as)."""
+        return [p for p in self.bank.poses("neutral_to_pose")
+                if not get_pose(p).is_combo and not detail_regions_of(p)]
+
+    @torch.no_grad()
+    def example_body(self, neutral: PreparedMesh, posed: PreparedMesh) -> BodyReading | None:
+        """An example pair's body motion read as the vocabulary's single body poses (`BodyReading`): each pose's
+        motion on the example's neutral mesh (the mean delta, the motion decoder), the non-negative weights (up to
+        READ_MAX each) whose mixed displacements best make the pair's, the mix then made by the decoder's motions
+        (as a blend) and measured against the posed mesh. The decoder reading the pair's latent delta, one person's
+        combination of joints, moved the wrong limbs (validation: three joints at once 0.25-0.28 explained, 25 mm
+        leak; read as poses 0.79-0.89); a pose's motion is what it learned. None without the motion decoder."""
+        from scipy.optimize import lsq_linear
+
+        if self.predicts_with("neutral_to_pose") != "motion":
+            return None
+        self.example_delta(neutral, posed)  # one topology, or the error that says so
+        v = neutral.vertices.astype(np.float64)
+        target = posed.vertices.astype(np.float64) - v
+        motion = float(np.linalg.norm(target, axis=1).mean())
+        if motion == 0.0:
+            return BodyReading({}, 1.0)
+        poses = self.body_poses()
+        cols = np.stack([(self._scaled_motions(neutral, [self._mean_condition(p)], [1.0]) - v).ravel()
+                         for p in poses], axis=1)
+        w = lsq_linear(cols, target.ravel(), bounds=(0.0, READ_MAX)).x
+        keep = w >= READ_DROP  # refit without the small ones: what one character's noise reads as
+        w = np.zeros(len(poses))
+        if keep.any():
+            w[keep] = lsq_linear(cols[:, keep], target.ravel(), bounds=(0.0, READ_MAX)).x
+        weights = {p: float(x) for p, x in zip(poses, w) if x > 0}
+        made = self._read_motion(neutral, weights, 1.0)
+        return BodyReading(weights, 1.0 - float(np.linalg.norm(made - posed.vertices, axis=1).mean()) / motion)
+
+    def _mean_condition(self, pose: str, kind: PairKind = "neutral_to_pose") -> tuple:
+        """(direction, r, kind, averaged) of a pose's mean delta, as the motion decoder reads it."""
+        d = self.bank.mean_delta(kind, pose)
+        return (*self._condition(d, 1.0, self.model.cfg.motion.reads_as(kind)), self.averaged(pose, "mean_pose_delta", kind))
+
+    def _read_motion(self, mesh: PreparedMesh, weights: dict[str, float], scale: float,
+                     extra: list[tuple[tuple, float]] = ()) -> np.ndarray:
+        """(V, 3) the mesh moved by a `BodyReading`'s poses' motions times their weights and `scale`, mixed with the
+        `extra` [(condition, scale)] (a blend's pose B)."""
+        conditions = [self._mean_condition(p) for p in weights] + [c for c, _ in extra]
+        return self._scaled_motions(mesh, conditions, [w * scale for w in weights.values()] + [x for _, x in extra])
+
     def example_detail(self, neutral: PreparedMesh, posed: PreparedMesh) -> dict[str, np.ndarray] | None:
         """{region: delta} of an example pair for the local detail stage (None without one): the posed mesh's
         head and hands sampled co-moving with the neutral's, a hand read from its own motion
@@ -292,10 +366,10 @@ class Transfer:
                 kind: PairKind = "neutral_to_pose", pose_b: str | None = None, blend: float = 0.0,
                 oracle_target_mu: np.ndarray | None = None, oracle_target_mu_b: np.ndarray | None = None,
                 delta: np.ndarray | None = None, detail_delta: dict[str, np.ndarray] | None = None,
-                corrective_mix: dict[str, float] | None = None) -> np.ndarray:
+                corrective_mix: dict[str, float] | None = None, body_reading: BodyReading | None = None) -> np.ndarray:
         """(V, 3) float32 predicted vertices (`predict_detail(...).vertices`)."""
-        return self.predict_detail(mesh, pose, strategy, magnitude, kind, pose_b, blend,
-                                   oracle_target_mu, oracle_target_mu_b, delta, detail_delta, corrective_mix).vertices
+        return self.predict_detail(mesh, pose, strategy, magnitude, kind, pose_b, blend, oracle_target_mu,
+                                   oracle_target_mu_b, delta, detail_delta, corrective_mix, body_reading).vertices
 
     @torch.no_grad()
     def predict_detail(self, mesh: PreparedMesh, pose: str | None, strategy: Strategy = "mean_pose_delta",
@@ -303,14 +377,18 @@ class Transfer:
                        blend: float = 0.0, oracle_target_mu: np.ndarray | None = None,
                        oracle_target_mu_b: np.ndarray | None = None, delta: np.ndarray | None = None,
                        detail_delta: dict[str, np.ndarray] | None = None,
-                       corrective_mix: dict[str, float] | None = None) -> TransferOutput:
+                       corrective_mix: dict[str, float] | None = None,
+                       body_reading: BodyReading | None = None) -> TransferOutput:
         """The prediction with its parts. `blend` in [0, 1] mixes pose A's delta toward pose B's;
         `magnitude` in [0, 2] scales r_Δ (0 = no motion requested: the source exactly, 1 = as
         conditioned, 2 = doubled). The displacement is scaled by the noise gate of the delta.
         `delta`: pose A's raw latent delta given directly (an example pair's, `example_delta`) instead of
         the strategy's; `pose` may then be None; `detail_delta` its region deltas (`example_detail`),
         `corrective_mix` its corrective read as the corrective fields' poses (`example_corrective`; None: unread, no
-        corrective then, said so — the network's reading of a corrective's delta explained less than no motion).
+        corrective then, said so — the network's reading of a corrective's delta explained less than no motion),
+        `body_reading` its body motion read as the vocabulary's body poses (`example_body`; neutral_to_pose by the
+        motion decoder): when the read makes enough of the example (`BodyReading.used`) the body moves by those
+        poses' motions, else the decoder reads `delta`; the note says which.
         With a local detail stage, `neutral_to_pose` adds what a face or finger pose does inside the head and
         hands, `source_to_combo` what the combination's added face poses do (`_detail_parts`, `_add_detail`)."""
         magnitude, blend = check_magnitude(magnitude), check_blend(blend)
@@ -331,9 +409,18 @@ class Transfer:
         body = (not self._local_only(None if delta is not None else pose, kind),
                 not self._local_only(pose_b if d_b is not None else None, kind))
         note = None
-        if predictor == "motion":
+        read = body_reading if delta is not None and kind == "neutral_to_pose" and predictor == "motion" else None
+        if read is not None and read.used:
+            raw, gate, signal = self._read_prediction(mesh, read, d, None if d_b is None else (d_b, n_b), blend,
+                                                      magnitude, kind, body[1])
+            gated = raw
+            note = f"the example's body motion reads as {read.describe()}"
+        elif predictor == "motion":
             raw, gated, gate, signal = self._motion_prediction(mesh, (d, n), None if d_b is None else (d_b, n_b),
                                                                blend, magnitude, kind, body)
+            if read is not None:
+                note = (f"the example's body motion is no mix of the vocabulary's body poses ({read.describe()}): "
+                        "the decoder reads its latent delta")
         else:
             averaged = n
             if d_b is not None:
@@ -515,6 +602,22 @@ class Transfer:
                        torch.from_numpy(mesh.knn)[None].to(dev), fields.weights(direction, k), field_disp,
                        features=features)["vertices"]
         return raw_t[0].cpu().numpy()
+
+    def _read_prediction(self, mesh: PreparedMesh, read: BodyReading, d: np.ndarray, b: tuple[np.ndarray, int] | None,
+                         blend: float, magnitude: float, kind: PairKind, b_moves: bool = True
+                         ) -> tuple[np.ndarray, float, float]:
+        """(vertices, gate, signal) of an example pair read as poses (`BodyReading`): its poses' motions times their
+        weights, the magnitude and 1 - blend, mixed with pose B's motion (`b`: its (delta, deltas averaged)) times the
+        blend and B's noise gate. The read is of the example's motion, not of a latent delta, so it has no noise
+        gate of its own (gate 1; the signal is its latent delta's, for the record)."""
+        _, signal = self.noise_gate(d)
+        extra, gate = [], 1.0 - blend if b is not None else 1.0
+        if b is not None:
+            g_b = self.noise_gate(*b)[0] if b_moves else 0.0
+            extra = [((*self._condition(b[0], 1.0, self.model.cfg.motion.reads_as(kind)), b[1]), blend * magnitude * g_b)]
+            gate += blend * g_b
+        scale = magnitude * (1.0 - blend if b is not None else 1.0)
+        return self._read_motion(mesh, read.weights, scale, extra), (0.0 if magnitude == 0 else gate), signal
 
     def _motion_prediction(self, mesh: PreparedMesh, a: tuple[np.ndarray, int], b: tuple[np.ndarray, int] | None,
                            blend: float, magnitude: float, kind: PairKind, body: tuple[bool, bool] = (True, True)

@@ -86,6 +86,38 @@ def test_example_pair_conditions_the_prediction(tiny_motion, held_out):
         transfer.example_delta(neutral, transfer.prepare(v[:-10], c.faces[:100]))
 
 
+def test_an_example_pair_reads_as_the_poses_that_make_it(tiny_motion, held_out):
+    """A's motion made by two poses' motions reads back as those two poses and makes nearly all of it; B then
+    moves by their motions (the two poses blended on B), scaled by the magnitude; a still pair reads as no
+    motion; a read that makes too little of its example leaves the latent delta to the decoder, and says so."""
+    from latent_model.transfer import READ_MIN, BodyReading
+
+    transfer, _ = tiny_motion
+    c, i, v = held_out
+    a = c.split_indices("test", rest="bind")[1]
+    neutral = transfer.prepare(c.vertices(c.state(a, None, "neutral")), c.faces, sdf_faces=c.body_faces)
+    made = transfer.predict(neutral, "elbowBentLf", pose_b="kneeBentLf", blend=0.5)
+    posed = transfer.prepare(made, c.faces, sdf_faces=c.body_faces)
+    read = transfer.example_body(neutral, posed)
+    assert read.used and read.explained > 0.9
+    assert abs(read.weights["elbowBentLf"] - 0.5) < 0.15 and abs(read.weights["kneeBentLf"] - 0.5) < 0.15
+    mesh = transfer.prepare(v, c.faces, sdf_faces=c.body_faces)
+    delta = transfer.example_delta(neutral, posed)
+    out = transfer.predict_detail(mesh, None, delta=delta, body_reading=read)
+    blended = transfer.predict(mesh, "elbowBentLf", pose_b="kneeBentLf", blend=0.5)
+    scale = np.linalg.norm(blended - v, axis=1).max()
+    assert np.linalg.norm(out.vertices - blended, axis=1).max() < 0.2 * scale
+    assert out.label == "example" and "reads as" in out.note and "elbowBentLf" in out.note
+    assert np.array_equal(transfer.predict(mesh, None, magnitude=0.0, delta=delta, body_reading=read), mesh.vertices)
+    half = transfer.predict(mesh, None, magnitude=0.5, delta=delta, body_reading=read)
+    assert 0.3 < np.linalg.norm(half - v, axis=1).max() / np.linalg.norm(out.vertices - v, axis=1).max() < 0.7
+    still = transfer.example_body(neutral, neutral)
+    assert still.weights == {} and np.array_equal(transfer.predict(mesh, None, delta=delta * 0, body_reading=still), v)
+    weak = BodyReading(read.weights, READ_MIN / 2)
+    fallback = transfer.predict_detail(mesh, None, delta=delta, body_reading=weak)
+    assert np.array_equal(fallback.vertices, transfer.predict(mesh, None, delta=delta)) and "latent delta" in fallback.note
+
+
 def test_lrr_transfer_end_to_end(tiny_motion, held_out, tmp_path, capsys):
     from latent_model.checkpoint import save_checkpoint
     from latent_model.cli import main

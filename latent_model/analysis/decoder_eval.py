@@ -20,7 +20,9 @@ from latent_model.analysis.metrics import edge_strain, mesh_errors
 from latent_model.analysis.parallel import Batch, Workers, submit_characters
 from latent_model.corpus.poses import JointRotation, PoseConfig
 from latent_model.corpus.store import Corpus
+from latent_model.detail import describe_mix
 from latent_model.surface_cache import state_features
+from latent_model.transfer import READ_MIN
 from latent_model.types import FINAL
 
 BROAD = ("elbowBentLf", "elbowBentRt", "kneeBentLf", "kneeBentRt", "clavicleDownwardLf", "shoulderRaiseLf",
@@ -166,8 +168,9 @@ def magnitude_truths(transfer, chars: Characters, ids: list[int], generator) -> 
 
 
 def _example_pairs(transfer, chars: Characters, ids: list[int], generator, examples=None) -> list[tuple]:
-    """[(name, kind, delta (Z,), {identity id: truth (V, 3)})]: each example made on the first test person (the
-    user's pair, prepared like a user's meshes), its truth on the others."""
+    """[(name, kind, (delta (Z,), body reading), {identity id: truth (V, 3)})]: each example made on the first test
+    person (the user's pair, prepared like a user's meshes: its latent delta and what its body motion reads as,
+    `Transfer.example_body`), its truth on the others."""
     from latent_model.corpus.examples import EXAMPLES, example_pair
 
     c, out = chars.c, []
@@ -176,21 +179,27 @@ def _example_pairs(transfer, chars: Characters, ids: list[int], generator, examp
         pair = example_pair(generator, specs, name, specs[0].rest)
         a = transfer.prepare(pair.source_neutral, c.faces, sdf_faces=c.body_faces)
         a1 = transfer.prepare(pair.source_deformed, c.faces, sdf_faces=c.body_faces)
-        out.append((name, pair.example.kind, transfer.example_delta(a, a1),
+        out.append((name, pair.example.kind, (transfer.example_delta(a, a1), transfer.example_body(a, a1)),
                     {s.id: pair.targets[s.id][1] for s in specs[1:]}))
     return out
 
 
-def _example_row(transfer, chars: Characters, i: int, delta: np.ndarray, truth: np.ndarray) -> dict:
+def _example_row(transfer, chars: Characters, i: int, read: tuple, truth: np.ndarray) -> dict:
+    """Character i's errors transferring an example pair read as (delta, body reading) (`_example_pairs`)."""
     mesh = chars.neutral(i)
-    return _errors(transfer.predict(mesh, None, delta=delta), truth, mesh.vertices, chars.c.faces)
+    delta, body = read
+    return _errors(transfer.predict(mesh, None, delta=delta, body_reading=body), truth, mesh.vertices, chars.c.faces)
 
 
 def _example_summary(pairs: list[tuple], rows: dict[str, list[dict]]) -> dict:
     out: dict = {}
-    for name, kind, _, _ in pairs:
+    for name, kind, (_, body), _ in pairs:
         _mean(rows[name], f"decoder.examples.{name}", out)
         out[f"decoder.examples.{name}.kind"] = kind
+        if body is not None:  # what the pair read as on its own mesh, and whether the prediction moved by it
+            out[f"decoder.examples.{name}.read_explained"] = body.explained
+            out[f"decoder.examples.{name}.read_used"] = bool(body.used)
+            out[f"decoder.examples.{name}.read_as"] = describe_mix(body.weights) if body.weights else "no pose"
     return out
 
 
@@ -332,11 +341,18 @@ def markdown(m: dict) -> str:
     examples = sorted({k.split(".")[2] for k in m if k.startswith("decoder.examples.")})
     if examples:
         lines += ["### Transfer from an example pair (outside the vocabulary)", "",
-                  "| example | kind | explained | leak mm | edge strain % |", "|---|---|---|---|---|"]
+                  "The pair's body motion is read as a mix of the vocabulary's body poses on the example's own mesh "
+                  "(`Transfer.example_body`); where the mix makes at least "
+                  f"{READ_MIN:g} of it there, the targets move by those poses' motions, else the decoder reads the "
+                  "pair's latent delta.", "",
+                  "| example | kind | explained | leak mm | edge strain % | read as (makes on the example) | moved by |",
+                  "|---|---|---|---|---|---|---|"]
         for e in examples:
             k = f"decoder.examples.{e}"
+            read = (f"{m[f'{k}.read_as']} ({_f(m[f'{k}.read_explained'])})", "the read" if m[f"{k}.read_used"]
+                    else "latent delta") if f"{k}.read_as" in m else ("—", "latent delta")
             lines.append(f"| {e} | {m[f'{k}.kind']} | {_f(m[f'{k}.explained'])} | {_f(m[f'{k}.leak_mm'])} | "
-                         f"{_f(m[f'{k}.strain'], 1)} |")
+                         f"{_f(m[f'{k}.strain'], 1)} | {read[0]} | {read[1]} |")
         lines.append("")
     if "decoder.novelty.threshold" in m and m["decoder.novelty.threshold"] > 0:
         lines += ["### Out-of-distribution warning", "",
