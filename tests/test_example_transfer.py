@@ -113,6 +113,12 @@ def test_an_example_pair_reads_as_the_poses_that_make_it(tiny_motion, held_out):
     assert 0.3 < np.linalg.norm(half - v, axis=1).max() / np.linalg.norm(out.vertices - v, axis=1).max() < 0.7
     still = transfer.example_body(neutral, neutral)
     assert still.weights == {} and np.array_equal(transfer.predict(mesh, None, delta=delta * 0, body_reading=still), v)
+    # blending toward a pose: continuous, and at 1 the pose's own prediction
+    sweep = [transfer.predict(mesh, None, delta=delta, body_reading=read, pose_b="elbowBentRt", blend=b)
+             for b in np.linspace(0, 1, 11)]
+    steps = [np.linalg.norm(y - x, axis=1).max() for x, y in zip(sweep, sweep[1:])]
+    assert max(steps) <= 3.0 * np.median(steps) and np.allclose(sweep[0], out.vertices, atol=1e-6)
+    assert np.allclose(sweep[-1], transfer.predict(mesh, "elbowBentRt"), atol=1e-5)
     weak = BodyReading(read.weights, READ_MIN / 2)
     fallback = transfer.predict_detail(mesh, None, delta=delta, body_reading=weak)
     assert np.array_equal(fallback.vertices, transfer.predict(mesh, None, delta=delta)) and "latent delta" in fallback.note
