@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from latent_model.analysis.parallel import Workers, map_characters, resolve_workers
+from latent_model.analysis.parallel import Workers, resolve_workers
 
 
 def _threads(transfer, corpus, shared, item):  # module level: a worker receives it by name
@@ -17,7 +17,8 @@ def _threads(transfer, corpus, shared, item):  # module level: a worker receives
 
 
 def test_workers_return_in_order_and_run_one_thread_each():
-    out = map_characters(_threads, range(5), None, workers=2, shared="shared")
+    with Workers(None, None, 2) as pool:
+        out = pool.map(_threads, range(5), shared="shared")
     assert [o[:2] for o in out] == [(k, "shared") for k in range(5)]
     assert all(torch_threads == 1 and blas_threads == 1 for _, _, torch_threads, blas_threads in out)
 

@@ -121,12 +121,6 @@ def submit_characters(fn: Callable[..., Any], items: Iterable, transfer, workers
     return own.submit(fn, items, shared, then, desc, progress, _owner=own)
 
 
-def map_characters(fn: Callable[..., Any], items: Iterable, transfer, workers: "int | Workers" = 1, corpus=None,
-                   shared: Any = None, desc: str | None = None, progress: bool = False) -> list:
-    """[fn(transfer, corpus, shared, item) for item in items] on `workers` (`submit_characters`)."""
-    return submit_characters(fn, items, transfer, workers, corpus, shared, None, desc, progress).get()
-
-
 def _init_worker(transfer, corpus_path: str | None) -> None:
     from latent_model.corpus.store import Corpus
     from latent_model.runtime import single_threaded
