@@ -27,7 +27,9 @@ from latent_model.detail_poses import detail_regions_of, finger_chains
 from latent_model.nn.local_detail import LocalDetail, LocalDetailConfig
 from latent_model.regions import REGION_KIND, RegionFrame, RegionSampling, region_frames, sample_region
 
-FORMAT = "lrr-detail-2"
+# 3: a hand's frame is its principal axes (`regions.principal_frame`); a file of 2 holds codes and fields in the
+# hands' former limb frames, which the new frames would misread: refused, retrain
+FORMAT = "lrr-detail-3"
 EDGE = 0.15  # of a region's reach: the local motion fades to 0 over its outer edge (no seam at the neck or wrist)
 
 

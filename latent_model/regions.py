@@ -2,9 +2,9 @@
 
 The body's SDF samples put a few hundred points on a face and its reconstruction error (~6 mm) is larger
 than a brow's motion: the global code cannot see a face or a finger. Here each region is located on the
-surface (`surface.detail_depth`: any rest pose, any topology), given a frame that turns with it (the mean
-of its vertices' limb frames, so a hand held anywhere reads the same) and a scale (its area-weighted RMS
-radius), and sampled inside that frame: points are region-local and in units of the radius, signed
+surface (`surface.detail_depth`: any rest pose, any topology), given a frame that turns with it (the head:
+the mean of its vertices' limb frames; a hand: its own principal axes, so a hand held anywhere reads the
+same) and a scale (its area-weighted RMS radius), and sampled inside that frame: points are region-local and in units of the radius, signed
 distances too. The left hand is mirrored (its lateral axis negated) so one hand encoder reads both hands.
 
 Co-moving samples: the near-surface points are drawn as (a seeded region vertex + a seeded offset), so two
@@ -22,6 +22,9 @@ REGIONS = ("head", "hand_left", "hand_right")
 REGION_KIND = {"head": "head", "hand_left": "hand", "hand_right": "hand"}  # which encoder reads a region
 MIRRORED = {"hand_left"}  # read as a right hand: one hand encoder for both
 FOLLOW_TOLERANCE = 0.01  # of a region's radius: a vertex this close to its rigid motion counts as still
+# a hand's principal axes need this ratio between successive spreads (length / width, width / thickness) to be
+# told apart; anny's hands: >= 1.43 and >= 6 (a hand that is not, e.g. a ball of a fist, keeps its limb frame)
+AXES_SEPARATION = 1.15
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,22 @@ def _weighted_fit(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
     return r, cb - r @ ca
 
 
+def principal_frame(points: np.ndarray, weights: np.ndarray, limb: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation whose columns are the principal axes of `points` (N, 3) under `weights` (N,) (summing to
+    1), longest first, each signed to agree with the same column of `limb` (3, 3) (t along the limb, u forward);
+    `limb` itself when the spreads are too alike to order (`AXES_SEPARATION`). A hand's limb frame takes its
+    forward axis from the world, so it turned 6-17° about the hand between rest poses (arms raised, T-pose) while
+    the hand itself stayed rigid; the hand's own axes turn with it (0.2-5°)."""
+    d = points - weights @ points
+    spread, axes = np.linalg.eigh((d * weights[:, None]).T @ d)  # ascending
+    if spread[2] < AXES_SEPARATION * spread[1] or spread[1] < AXES_SEPARATION * spread[0]:
+        return limb
+    t, u = axes[:, 2], axes[:, 1]
+    t = t if t @ limb[:, 0] >= 0 else -t
+    u = u if u @ limb[:, 1] >= 0 else -u
+    return np.stack([t, u, np.cross(t, u)], axis=1)
+
+
 def rigid_motion(a: np.ndarray, b: np.ndarray, depth: np.ndarray, tolerance: float,
                  iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """(R (3, 3), t (3,)) taking the largest near-rigid part of points `a` (N, 3) onto `b` (N, 3): b ~ a R^T + t.
@@ -142,6 +161,8 @@ def region_frames(vertices: np.ndarray, faces: np.ndarray, features=None) -> dic
         w = areas[idx] / areas[idx].sum()
         centre = w @ v[idx]
         rotation = _nearest_rotation(np.einsum("n,nij->ij", w, sf.frames[idx].astype(np.float64)))
+        if REGION_KIND[name] == "hand":
+            rotation = principal_frame(v[idx], w, rotation)
         radius = float(np.sqrt(w @ ((v[idx] - centre) ** 2).sum(axis=1)))
         depth = depths[name][idx]
         out[name] = RegionFrame(name, idx, depth.astype(np.float32), centre, rotation, radius, name in MIRRORED)
