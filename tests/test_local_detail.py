@@ -54,6 +54,16 @@ def test_the_file_holds_the_networks_and_the_bank(detail, tmp_path):
     bad.write_bytes(b"not a file")
     with pytest.raises(CheckpointError, match="lrr train detail"):
         LocalDetailModel.load(bad)
+    # a file of format 2 holds its hands in their former limb frames, which today's frames would misread: refused
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    with safe_open(str(again), framework="pt") as f:
+        meta, tensors = dict(f.metadata()), {k: f.get_tensor(k) for k in f.keys()}
+    old = tmp_path / "format2.safetensors"
+    save_file(tensors, str(old), metadata={**meta, "format": "lrr-detail-2"})
+    with pytest.raises(CheckpointError, match="lrr train detail"):
+        LocalDetailModel.load(old)
 
 
 def test_a_face_pose_moves_the_head_only_and_scales_with_the_magnitude(with_detail, tiny_motion, tiny_corpus):
