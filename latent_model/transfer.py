@@ -52,6 +52,24 @@ READ_MIN = 0.3
 READ_MAX, READ_DROP = 2.0, 0.05  # a pose read up to twice its own motion; a weight under READ_DROP is dropped
 
 
+def read_weights(cols: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(P,) weights in {0} or [READ_DROP, READ_MAX] of the columns `cols` (N, P) whose mix best makes `target` (N,):
+    bounded least squares, the weights under READ_DROP (what one character's noise reads as) dropped and the rest
+    refitted until the refit leaves none small (a refit can put one near 0 too: a wrist twist read as
+    "neckTurnRt 0.00")."""
+    from scipy.optimize import lsq_linear
+
+    keep = lsq_linear(cols, target, bounds=(0.0, READ_MAX)).x >= READ_DROP
+    while True:
+        w = np.zeros(cols.shape[1])
+        if keep.any():
+            w[keep] = lsq_linear(cols[:, keep], target, bounds=(0.0, READ_MAX)).x
+        small = keep & (w < READ_DROP)
+        if not small.any():
+            return w
+        keep &= ~small
+
+
 @dataclass(frozen=True)
 class BodyReading:
     """What an example pair's body motion reads as: {pose: weight} of the vocabulary's single body poses whose
@@ -260,8 +278,6 @@ class Transfer:
         (as a blend) and measured against the posed mesh. The decoder reading the pair's latent delta, one person's
         combination of joints, moved the wrong limbs (validation: three joints at once 0.25-0.28 explained, 25 mm
         leak; read as poses 0.79-0.89); a pose's motion is what it learned. None without the motion decoder."""
-        from scipy.optimize import lsq_linear
-
         if self.predicts_with("neutral_to_pose") != "motion":
             return None
         self.example_delta(neutral, posed)  # one topology, or the error that says so
@@ -273,11 +289,7 @@ class Transfer:
         poses = self.body_poses()
         cols = np.stack([(self._scaled_motions(neutral, [self._mean_condition(p)], [1.0]) - v).ravel()
                          for p in poses], axis=1)
-        w = lsq_linear(cols, target.ravel(), bounds=(0.0, READ_MAX)).x
-        keep = w >= READ_DROP  # refit without the small ones: what one character's noise reads as
-        w = np.zeros(len(poses))
-        if keep.any():
-            w[keep] = lsq_linear(cols[:, keep], target.ravel(), bounds=(0.0, READ_MAX)).x
+        w = read_weights(cols, target.ravel())
         weights = {p: float(x) for p, x in zip(poses, w) if x > 0}
         made = self._read_motion(neutral, weights, 1.0)
         return BodyReading(weights, 1.0 - float(np.linalg.norm(made - posed.vertices, axis=1).mean()) / motion)

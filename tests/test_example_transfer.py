@@ -86,6 +86,25 @@ def test_example_pair_conditions_the_prediction(tiny_motion, held_out):
         transfer.example_delta(neutral, transfer.prepare(v[:-10], c.faces[:100]))
 
 
+def test_a_reading_keeps_no_small_weight():
+    """An example's pose weights are 0 or at least READ_DROP, and fit the target as well as bounded least squares
+    on the poses kept: one refit after dropping the small weights could leave a weight near 0 (a wrist twist was
+    read as "neckTurnRt 0.00"); seeded random problems hold such cases."""
+    from scipy.optimize import lsq_linear
+
+    from latent_model.transfer import READ_DROP, READ_MAX, read_weights
+
+    rng = np.random.default_rng(0)
+    for _ in range(1500):
+        cols, target = rng.normal(size=(6, 4)), rng.normal(size=6)
+        w = read_weights(cols, target)
+        assert np.all((w == 0) | ((w >= READ_DROP) & (w <= READ_MAX))), w
+        keep = w > 0
+        if keep.any():
+            best = lsq_linear(cols[:, keep], target, bounds=(0.0, READ_MAX)).x
+            assert np.allclose(w[keep], best, atol=1e-6)
+
+
 def test_an_example_pair_reads_as_the_poses_that_make_it(tiny_motion, held_out):
     """A's motion made by two poses' motions reads back as those two poses and makes nearly all of it; B then
     moves by their motions (the two poses blended on B), scaled by the magnitude; a still pair reads as no
