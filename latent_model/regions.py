@@ -4,8 +4,8 @@ The body's SDF samples put a few hundred points on a face and its reconstruction
 than a brow's motion: the global code cannot see a face or a finger. Here each region is located on the
 surface (`surface.detail_depth`: any rest pose, any topology), given a frame that turns with it (the head:
 the mean of its vertices' limb frames; a hand: its own principal axes, so a hand held anywhere reads the
-same) and a scale (its area-weighted RMS radius), and sampled inside that frame: points are region-local and in units of the radius, signed
-distances too. The left hand is mirrored (its lateral axis negated) so one hand encoder reads both hands.
+same) and a scale (its area-weighted RMS radius), and sampled inside that frame: points are region-local and
+in units of the radius, signed distances too. The left hand is mirrored (its lateral axis negated) so one hand encoder reads both hands.
 
 Co-moving samples: the near-surface points are drawn as (a seeded region vertex + a seeded offset), so two
 states of one mesh topology sampled with one seed and the first state's frame put each point on the same
