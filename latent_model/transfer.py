@@ -16,9 +16,8 @@ network, which also reads the mesh's latent, normals and neighbourhoods. A `Prep
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -26,15 +25,13 @@ import torch
 from latent_model.bank import LatentBank
 from latent_model.corpus.pairs import split_bank_key
 from latent_model.corpus.poses import get_pose
-from latent_model.corpus.sdf import body_component_faces, sample_sdf, vertex_normals
+from latent_model.corpus.sdf import body_component_faces, sample_sdf
 from latent_model.detail_poses import detail_regions_of
-from latent_model.nn.delta import normalised_delta
-from latent_model.nn.motion_decoder import (RigidMotion, apply_motion, heat_averager, local_motion_fit, mix_motions,
-                                            part_rigidifier, surface_smoother)
+from latent_model.motion_prediction import MotionPredictor, delta_condition
 from latent_model.nn.pose_fields import FieldCache
-from latent_model.nn.vertex_decoder import knn_graph
 from latent_model.noise_gate import GATE_HI, GATE_LO, smooth_gate
-from latent_model.types import (PAIR_KINDS, PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
+from latent_model.prepared_mesh import PreparedMesh
+from latent_model.types import (PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
 if TYPE_CHECKING:
@@ -91,59 +88,6 @@ class BodyReading:
         return f"{mix} (makes {self.explained:.2f} of the example's motion on its own mesh)"
 
 
-class PreparedMesh:
-    """A mesh in the model frame (metres, Z up, faces -Y) and what the predictors read from it,
-    each derived on first read and cached: normals, neighbourhoods, the latent mean of its SDF
-    samples, and the per-device feature caches of the pose fields and the decoder network."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, sdf_faces: np.ndarray, knn_k: int,
-                 encode: Callable[[np.ndarray, np.ndarray], np.ndarray], mu: np.ndarray | None = None,
-                 surface=None) -> None:
-        self.vertices = vertices  # (V, 3) float32
-        self.faces = faces  # (F, 3) int64
-        self.sdf_faces = sdf_faces  # (F', 3) the closed shell its SDF is sampled on
-        self._knn_k = knn_k
-        self._encode = encode
-        if mu is not None:
-            self.__dict__["mu"] = np.asarray(mu, np.float32)
-        if surface is not None:
-            self.__dict__["surface"] = surface
-        self._caches: dict[tuple[str, str], object] = {}
-
-    @cached_property
-    def mu(self) -> np.ndarray:
-        """(Z,) posterior mean of the mesh's SDF samples."""
-        return np.asarray(self._encode(self.vertices, self.sdf_faces), np.float32)
-
-    @cached_property
-    def normals(self) -> np.ndarray:
-        """(V, 3) unit vertex normals."""
-        return vertex_normals(self.vertices, self.faces)
-
-    @cached_property
-    def surface(self):
-        """`surface.SurfaceFeatures`: geodesic coordinates, limb frames, medial points (the motion decoder's)."""
-        from latent_model.surface import surface_features
-
-        return surface_features(self.vertices, self.faces)
-
-    @cached_property
-    def knn(self) -> np.ndarray:
-        """(V, K) each vertex's nearest other vertices (the decoder's refinement neighbourhoods)."""
-        return knn_graph(self.vertices, self._knn_k)
-
-    def derived(self) -> set[str]:
-        """Which of mu, normals, knn, surface have been computed (or given)."""
-        return {k for k in ("mu", "normals", "knn", "surface") if k in self.__dict__}
-
-    def cache(self, name: str, device: torch.device, make: Callable[[], object]):
-        """A per-device cache entry (`make()` on first use)."""
-        key = (name, str(device))
-        if key not in self._caches:
-            self._caches[key] = make()
-        return self._caches[key]
-
-
 @dataclass
 class TransferOutput:
     vertices: np.ndarray  # (V, 3) the prediction: the motion scaled by the noise gate (source + gate * displacement
@@ -191,6 +135,7 @@ class Transfer:
         self.sdf_k = sdf_k
         self.device = device or torch.device("cpu")
         self.model.to(self.device)
+        self.motion = MotionPredictor(self.model, self.device)  # decoder v2's motions, when the model has it
         self.detail = detail  # the local detail stage (faces, fingers), when the model has one
         self.correctives = correctives  # the corrective fields (skinning -> skinning+blendshape), when it has them
 
@@ -287,7 +232,7 @@ class Transfer:
         if motion == 0.0:
             return BodyReading({}, 1.0)
         poses = self.body_poses()
-        cols = np.stack([(self._scaled_motions(neutral, [self._mean_condition(p)], [1.0]) - v).ravel()
+        cols = np.stack([(self.motion.scaled(neutral, [self._mean_condition(p)], [1.0]) - v).ravel()
                          for p in poses], axis=1)
         w = read_weights(cols, target.ravel())
         weights = {p: float(x) for p, x in zip(poses, w) if x > 0}
@@ -297,14 +242,14 @@ class Transfer:
     def _mean_condition(self, pose: str, kind: PairKind = "neutral_to_pose") -> tuple:
         """(direction, r, kind, averaged) of a pose's mean delta, as the motion decoder reads it."""
         d = self.bank.mean_delta(kind, pose)
-        return (*self._condition(d, 1.0, self.model.cfg.motion.reads_as(kind)), self.averaged(pose, "mean_pose_delta", kind))
+        return self.motion.condition(d, kind, self.averaged(pose, "mean_pose_delta", kind))
 
     def _read_motion(self, mesh: PreparedMesh, weights: dict[str, float], scale: float,
                      extra: list[tuple[tuple, float]] = ()) -> np.ndarray:
         """(V, 3) the mesh moved by a `BodyReading`'s poses' motions times their weights and `scale`, mixed with the
         `extra` [(condition, scale)] (a blend's pose B)."""
         conditions = [self._mean_condition(p) for p in weights] + [c for c, _ in extra]
-        return self._scaled_motions(mesh, conditions, [w * scale for w in weights.values()] + [x for _, x in extra])
+        return self.motion.scaled(mesh, conditions, [w * scale for w in weights.values()] + [x for _, x in extra])
 
     def example_detail(self, neutral: PreparedMesh, posed: PreparedMesh) -> dict[str, np.ndarray] | None:
         """{region: delta} of an example pair for the local detail stage (None without one): the posed mesh's
@@ -592,16 +537,11 @@ class Transfer:
         gated = (gated + (added if same else self.detail.displacement(regions, weighed, gated, held))).astype(np.float32)
         return (raw + added).astype(np.float32), gated, gates, mix
 
-    def _condition(self, d: np.ndarray, magnitude: float, kind: PairKind) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(direction (1, Z), r (1,) scaled by the magnitude, kind (1,)) of a raw delta, on the device."""
-        direction, r = normalised_delta(torch.from_numpy(np.asarray(d, np.float32))[None].to(self.device))
-        return direction, r * magnitude, torch.tensor([PAIR_KINDS.index(kind)], device=self.device)
-
     def _fields_or_network(self, mesh: PreparedMesh, predictor: Predictor, d: np.ndarray, magnitude: float,
                            kind: PairKind) -> np.ndarray:
         """(V, 3) the pose fields' prediction, or the network's (which reads the fields too)."""
         dev, fields = self.device, self.model.pose_fields
-        direction, r, k = self._condition(d, magnitude, kind)
+        direction, r, k = delta_condition(d, magnitude, kind, dev)
         v = torch.from_numpy(mesh.vertices)[None].to(dev)
         field_disp = fields.displacement(v, direction, r, k, cache=mesh.cache("pose_fields", dev, lambda: FieldCache(v)))
         if predictor == "pose_fields":
@@ -626,7 +566,7 @@ class Transfer:
         extra, gate = [], 1.0 - blend if b is not None else 1.0
         if b is not None:
             g_b = self.noise_gate(*b)[0] if b_moves else 0.0
-            extra = [((*self._condition(b[0], 1.0, self.model.cfg.motion.reads_as(kind)), b[1]), blend * magnitude * g_b)]
+            extra = [(self.motion.condition(b[0], kind, b[1]), blend * magnitude * g_b)]
             gate += blend * g_b
         scale = magnitude * (1.0 - blend if b is not None else 1.0)
         return self._read_motion(mesh, read.weights, scale, extra), (0.0 if magnitude == 0 else gate), signal
@@ -645,82 +585,6 @@ class Transfer:
         gates = [g if moves else 0.0 for g, moves in zip(gates, body)]
         gate = 0.0 if magnitude == 0 else float(sum(w * g for w, g in zip(weights, gates)))
         signal = float(sum(w * s for w, s in zip(weights, signals)))
-        conditions = [(*self._condition(x, 1.0, self.model.cfg.motion.reads_as(kind)), n) for x, n in poses]
-        if self.model.cfg.motion.refit_radius <= 0:  # the decoder's own parameters scaled (the model before refits)
-            motions = [self._motion(mesh, *c, magnitude) for c in conditions]
-            v = torch.from_numpy(mesh.vertices)[None].to(self.device)
-            move = self._mover(mesh)
-            raw = move(v, mix_motions(motions, [w * moves for w, moves in zip(weights, body)]))[0].cpu().numpy()
-            if gate == 1.0:
-                return raw, raw, gate, signal
-            gated = move(v, mix_motions(motions, [a * g * (magnitude != 0) for a, g in zip(weights, gates)]))
-            return raw, gated[0].cpu().numpy(), gate, signal
-        # a local-only pose's decoder reading is not computed (half the motion decoder calls of an evaluation)
-        raw = self._scaled_motions(mesh, conditions, [w * magnitude * moves for w, moves in zip(weights, body)])
-        if gate == 1.0:
-            return raw, raw, gate, signal
-        return raw, self._scaled_motions(mesh, conditions, [w * g * magnitude for w, g in zip(weights, gates)]), gate, signal
-
-    def _scaled_motions(self, mesh: PreparedMesh, conditions: list, scales: list[float]) -> np.ndarray:
-        """(V, 3) the mesh moved by each pose's motion (its `conditions`) times its scale, mixed. One pose at its
-        own length is the decoder's motion with hands and feet rigid (`_mover`); any other mix (a magnitude, a
-        blend, a partial gate) scales and mixes the motions that the surface makes there (`_fitted_motion`), which
-        give the same positions at scale 1, so the prediction is continuous in every slider."""
-        v = torch.from_numpy(mesh.vertices)[None].to(self.device)
-        active = [i for i, s in enumerate(scales) if s != 0]
-        if not active:
-            return mesh.vertices.copy()
-        if len(active) == 1 and scales[active[0]] == 1.0:
-            return self._mover(mesh)(v, self._motion(mesh, *conditions[active[0]]))[0].cpu().numpy()
-        fitted = [self._fitted_motion(mesh, *conditions[i]) for i in active]
-        return apply_motion(v, mix_motions(fitted, [scales[i] for i in active]))[0].cpu().numpy()
-
-    def _fitted_motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,
-                       averaged: int = 1) -> RigidMotion:
-        """The motion the surface makes under the decoder's prediction at the delta's own length (`local_motion_fit`
-        over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
-        cfg, dev = self.model.cfg.motion, self.device
-        fits = mesh.cache("motion_fits", dev, dict)
-        key = (direction.cpu().numpy().tobytes(), float(r), int(k), averaged, cfg.refit_radius, cfg.rigid_parts,
-               cfg.repivot, cfg.rigid_prior, cfg.rigid_anchor)
-        if key not in fits:
-            v = torch.from_numpy(mesh.vertices)[None].to(dev)
-            moved = self._mover(mesh)(v, self._motion(mesh, direction, r, k, averaged))
-            average = mesh.cache(f"motion_fit_ball_{cfg.refit_radius:g}", dev,
-                                 lambda: heat_averager(mesh.vertices, mesh.faces, cfg.refit_radius))
-            if len(fits) >= 16:  # a few poses at a time in the explorer; an evaluation walks through many
-                fits.pop(next(iter(fits)))
-            fits[key] = local_motion_fit(v, moved, average, max(cfg.repivot, 0.05))
-        return fits[key]
-
-    def _mover(self, mesh: PreparedMesh):
-        """(v_src, RigidMotion) -> moved vertices: `apply_motion`, with hands and feet as rigid parts
-        (`part_rigidifier`) unless the config says not."""
-        if not self.model.cfg.motion.rigid_parts:
-            return apply_motion
-        cfg = self.model.cfg.motion
-        return mesh.cache(f"motion_rigid_{cfg.rigid_prior:g}_{cfg.rigid_anchor:g}", self.device,
-                          lambda: part_rigidifier(mesh.surface.coords, prior=cfg.rigid_prior, anchor=cfg.rigid_anchor))
-
-    def _motion(self, mesh: PreparedMesh, direction: torch.Tensor, r: torch.Tensor, k: torch.Tensor,
-                averaged: int = 1, magnitude: float = 1.0) -> RigidMotion:
-        """The motion decoder's per-vertex motion of the mesh for a delta of length r scaled by `magnitude`, the
-        delta averaging `averaged` characters' deltas (its surface features read once per mesh)."""
-        dec, dev = self.model.motion_decoder, self.device
-
-        def tensors() -> dict[str, torch.Tensor]:
-            sf = mesh.surface
-            t = lambda a: torch.from_numpy(np.asarray(a, np.float32))[None].to(dev)  # noqa: E731
-            return {"v_src": t(mesh.vertices), "coords": t(sf.coords), "frames": t(sf.frames),
-                    "normals": t(mesh.normals), "medial": t(sf.medial)}
-
-        x = mesh.cache("motion", dev, tensors)
-        smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
-                                                                          self.model.cfg.motion.smooth))
-        # the first layer reads the mesh alone: once per mesh, not at every pose, strategy and slider move
-        h0 = mesh.cache("motion_h0", dev, lambda: dec.vertex_input(x["coords"], x["frames"], x["normals"],
-                                                                   x["medial"] - x["v_src"]))
-        mu = torch.from_numpy(mesh.mu)[None].to(dev)
-        return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r * magnitude / dec.delta_scale, kind=k,
-                                smooth=smooth, repivot=self.model.cfg.motion.repivot, r_ref=r / dec.delta_scale,
-                                averaged=torch.tensor([float(averaged)], device=dev), h0=h0)
+        conditions = [self.motion.condition(x, kind, n) for x, n in poses]
+        raw, gated = self.motion.predict(mesh, conditions, weights, gates, gate, magnitude, body)
+        return raw, gated, gate, signal
