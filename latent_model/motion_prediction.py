@@ -60,7 +60,7 @@ class MotionPredictor:
     def scaled(self, mesh: PreparedMesh, conditions: list, scales: list[float]) -> np.ndarray:
         """(V, 3) the mesh moved by each pose's motion (its `conditions`) times its scale, mixed. One pose at its
         own length is the decoder's motion with hands and feet rigid (`_mover`); any other mix (a magnitude, a
-        blend, a partial gate) scales and mixes the motions that the surface makes there (`_fitted_motion`), which
+        blend, a partial gate) scales and mixes the motions that the surface makes there (`_fitted`), which
         give the same positions at scale 1, so the prediction is continuous in every slider."""
         v = torch.from_numpy(mesh.vertices)[None].to(self.device)
         active = [i for i, s in enumerate(scales) if s != 0]
