@@ -31,12 +31,14 @@ from latent_model.motion_prediction import MotionPredictor, delta_condition
 from latent_model.nn.pose_fields import FieldCache
 from latent_model.noise_gate import GATE_HI, GATE_LO, smooth_gate
 from latent_model.prepared_mesh import PreparedMesh
+from latent_model.registration import SETTLE_LIMIT
 from latent_model.types import (PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
 if TYPE_CHECKING:
     from latent_model.corrective_fields import CorrectiveFields
     from latent_model.detail import LocalDetailModel
+    from latent_model.registration import Correspondence
 
 __all__ = ["BodyReading", "GATE_HI", "GATE_LO", "Novelty", "PreparedMesh", "Transfer", "TransferOutput", "parse_strategy"]
 
@@ -431,7 +433,8 @@ class Transfer:
             label = s.split(":", 1)[1]
             person = label.split("@")[0]
         fields = self.correctives
-        note = mesh.cache("corrective_note", f"fields:{id(fields)}", lambda: fields.available(mesh.vertices, mesh.faces))
+        other = mesh.cache("corrective_note", f"fields:{id(fields)}", lambda: fields.available(mesh.vertices, mesh.faces))
+        note = other if example is not None else None  # another topology reads anny's through a registered template
         if example is not None and not example and note is None:
             note = ("no corrective read from the example pair: the corrective fields follow anny's topology by vertex "
                     "index, and the example's meshes are not it (or hold no corrective)")
@@ -439,17 +442,31 @@ class Transfer:
         out = np.zeros_like(v)
         w_a = 1.0 - blend if pose_b is not None else 1.0
         a = [(pose, w_a, person)] if example is None else [(p, w_a * x, None) for p, x in example.items()]
-        moved, pooled = False, []
+        moved, pooled, registered = False, [], []
         for name, w, who in a + ([(pose_b, blend, person)] if pose_b is not None else []):
             parts = [c for c in (get_pose(name).components or (name,)) if fields.has(c)]
-            for c in parts if note is None and w * magnitude != 0 else ():
-                d, own = fields.displacement(v, c, who)
-                out += w * magnitude * d
+            if not parts or note is not None or w * magnitude == 0:
+                continue
+            view = self._anny_view(mesh, name) if other is not None else None
+            if view is not None:
+                settled = view.settled(fields.poses[parts[0]].index)
+                if settled > SETTLE_LIMIT:
+                    note = (f"no corrective: anny's template, fitted to this mesh (another topology than anny's), had to "
+                            f"move {settled:.0f} mm to lie on its {name} region; a read from it would be a guess")
+                    continue
+            for c in parts:
+                d, own = fields.displacement(v if view is None else view.on_mesh(v, mesh.faces), c, who)
+                out += w * magnitude * (d if view is None else view.to_mesh(d))
                 moved = True
                 if who is not None and not own:
                     pooled.append(c)
+            if view is not None:
+                registered.append(view.residual_mm)
         if pooled:
             note = f"{label}'s own samples are unlike this mesh ({', '.join(pooled)}): the pooled read"
+        if registered and note is None:
+            note = (f"another topology than anny's: the correctives are read through anny's template fitted and "
+                    f"registered onto this mesh ({max(registered):.1f} mm off its surface, median)")
         if example and note is None:
             from latent_model.detail import describe_mix
 
@@ -457,6 +474,14 @@ class Transfer:
         pred = (v + out).astype(np.float32)
         return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), "example" if example is not None else label,
                               "correctives", note=note)
+
+    def _anny_view(self, mesh: PreparedMesh, pose: str) -> "Correspondence":
+        """How anny's vertices lie on a mesh of another topology skinned in `pose` (`registration.correspond`: a
+        template fitted and registered onto it, some seconds; kept per mesh and pose)."""
+        from latent_model.registration import correspond, template_fitter
+
+        return mesh.cache(f"anny_view:{pose}", "cpu", lambda: correspond(template_fitter(), mesh.vertices, mesh.faces,
+                                                                          pose))
 
     def _local_only(self, pose: str | None, kind: PairKind) -> bool:
         """Whether the body decoder adds nothing to this pose: for neutral_to_pose, when the local detail stage moves
