@@ -454,8 +454,9 @@ class Transfer:
                     note = (f"no corrective: anny's template, fitted to this mesh (another topology than anny's), had to "
                             f"move {settled:.0f} mm to lie on its {name} region; a read from it would be a guess")
                     continue
+            source = v if view is None else view.on_mesh(v, mesh.faces)  # anny's vertices, on this mesh
             for c in parts:
-                d, own = fields.displacement(v if view is None else view.on_mesh(v, mesh.faces), c, who)
+                d, own = fields.displacement(source, c, who)
                 out += w * magnitude * (d if view is None else view.to_mesh(d))
                 moved = True
                 if who is not None and not own:
