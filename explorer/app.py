@@ -26,7 +26,8 @@ keep_freed_memory()  # the decoder's temporaries are reused, not page-faulted in
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lrr-explorer", description="LatentReRig explorer: source | prediction | ground truth")
     ap.add_argument("--target", help="held-out identity (e.g. id008) to show first")
-    ap.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose)")
+    ap.add_argument("--kind", default="neutral_to_pose", help="pair kind (default neutral_to_pose); with --mesh, the mesh is "
+                    "taken as its source: a skinned pose for skinning_to_skinning_plus_blendshape")
     ap.add_argument("--pose", default="elbowBentLf", help="pose A (default elbowBentLf)")
     ap.add_argument("--pose-b", help="pose B to blend toward")
     ap.add_argument("--blend", type=float, default=0.0, help="blend A -> B in [0, 1]")
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def after_load(_session) -> None:
         if mesh is not None:
-            win.open_path(args.mesh, mesh)
+            win.open_path(args.mesh, mesh, sel.kind)
         if saved is not None:
             win.restore_session(*saved)
         if all(example):

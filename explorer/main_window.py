@@ -20,6 +20,7 @@ from PySide6.QtWidgets import (QFileDialog, QLabel, QMainWindow, QMessageBox, QP
 
 from latent_model.atomic import atomic_write
 from latent_model.meshio import EXPORT_FORMATS, FORMATS, UserMesh, load_mesh
+from latent_model.types import PairKind
 
 from explorer.controls import Controls
 from explorer.heatmaps import HeatmapPanel
@@ -242,6 +243,8 @@ class MainWindow(QMainWindow):
 
     def _predicted(self, result: Predicted) -> None:
         t_draw = time.perf_counter()
+        if self.worker.idle:  # a slow first prediction (a registration) showed the busy bar; no job shows it now
+            self.progress.setVisible(False)
         self.session.apply(result)  # -> the views draw it (event `state`)
         self.draw_ms.append((time.perf_counter() - t_draw) * 1000)
         self._on_screen_pending = (result.requested, result.state)  # timed when the prediction view's render ends
@@ -351,9 +354,10 @@ class MainWindow(QMainWindow):
         self.error_shown.emit(msg)
 
     # -------------------------------------------------------------- file operations
-    def open_path(self, path: str | Path, mesh: UserMesh | None = None) -> None:
+    def open_path(self, path: str | Path, mesh: UserMesh | None = None, kind: PairKind = "neutral_to_pose") -> None:
         """Open a user's mesh (in the worker: big meshes take a moment); a bad file gives a dialog.
-        `mesh`: the file already read (the command line checks it before the window opens)."""
+        `mesh`: the file already read (the command line checks it before the window opens); `kind`: the pair kind
+        whose source it is taken as (the command line's --kind; a neutral otherwise)."""
         path = str(path)
         s = self.session
         if s is None:
@@ -370,7 +374,7 @@ class MainWindow(QMainWindow):
             except Exception:
                 s.remove_mesh(name)  # a mesh that cannot be encoded is no target
                 raise
-            return MeshOpened(name, path, m.summary())
+            return MeshOpened(name, path, m.summary(), kind)
 
         self.worker.submit(MeshOpened, job, subject=path)
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from latent_model.corpus.pairs import source_state_label
 from latent_model.meshio import UserMesh
 from latent_model.types import ColourBy, PairKind
 
@@ -148,6 +149,14 @@ class ViewState:
         return self.predictions[0]
 
     @property
+    def source_title(self) -> str:
+        """The source view's title: a held-out character's state, or what state an opened mesh is taken to be in."""
+        kind = self.selection.kind
+        if self.pair.source is not None:
+            return f"source: {self.target}" + (f" ({kind})" if kind != "neutral_to_pose" else "")
+        return f"source: {self.target}\ntaken as {source_state_label(kind, self.pair.pose, self.pair.component)}"
+
+    @property
     def colour(self) -> ColourBy:
         """What colours the prediction: the user's choice, or displacement when there is no truth."""
         return "displacement" if self.truth is None else self.selection.colour
@@ -232,6 +241,7 @@ class MeshOpened:
     name: str  # its name among the targets
     path: str
     summary: str  # one line for the status bar
+    kind: PairKind = "neutral_to_pose"  # the pair kind whose source it is taken as (a neutral unless asked otherwise)
 
 
 @dataclass(frozen=True)

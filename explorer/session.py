@@ -194,8 +194,6 @@ class Session:
             if sel.kind != "neutral_to_pose":
                 raise SessionError("an example pair is a neutral -> posed deformation: only neutral_to_pose applies "
                                    "to it (clear the example to predict another pair kind)")
-        if not self.has_truth(sel.target) and sel.kind != "neutral_to_pose":
-            raise SessionError(f"an opened mesh ({sel.target}) is a source mesh: only neutral_to_pose applies to it")
         return sel
 
     # -------------------------------------------------------------- meshes
@@ -318,6 +316,15 @@ class Session:
         strategy, label = (strategy, out.label) if example is None else ("example", example.name)
         return Prediction(strategy, label, v, err, disp, vertex_normals(v, prepared.faces), out.gate, out.signal,
                           novelty, out.detail, out.detail_mix, out.predictor, out.note), dt
+
+    def slow_step(self, sel: Selection) -> str | None:
+        """What makes computing `sel` slow the first time, for the status bar; None when nothing does."""
+        if sel.example is not None or not self.is_mesh(sel.target) or sel.target not in self.targets:
+            return None
+        prepared = self.prepare(self.pair(sel.target, sel.kind, sel.pose))
+        todo = self.transfer.registrations_to_fit(prepared, sel.kind, [sel.pose, sel.pose_b if sel.blend > 0 else None])
+        return (f"fitting anny's template to {sel.target} stood in {', '.join(todo)} (another topology: the correctives "
+                f"are read through it; about 20 s each, once)") if todo else None
 
     def compute(self, sel: Selection) -> ViewState:
         """Everything the views show for a selection (the one path: Transfer.prepare + predict)."""
@@ -503,7 +510,7 @@ class Session:
             self._resolve_pending()
             return
         base = self.selection or self.default_selection()
-        self.select(self._for_mesh(replace(base, target=result.name)))
+        self.select(self._for_mesh(replace(base, target=result.name, kind=result.kind)))
 
     @apply.register
     def _(self, result: ExampleOpened) -> None:
@@ -552,11 +559,11 @@ class Session:
         self.select(self.conditioned(self._for_mesh(sel), example))
 
     def _for_mesh(self, sel: Selection) -> Selection:
-        """An opened mesh is a source mesh: neutral_to_pose with poses that kind has."""
+        """An opened mesh is the source of its pair kind (a neutral, a skinned pose...): poses that kind has."""
         if not self.is_mesh(sel.target):
             return sel
-        poses = self.poses("neutral_to_pose")
-        return replace(sel, kind="neutral_to_pose", pose=sel.pose if sel.pose in poses else poses[0],
+        poses = self.poses(sel.kind)
+        return replace(sel, pose=sel.pose if sel.pose in poses else poses[0],
                        pose_b=sel.pose_b if sel.pose_b in poses else None)
 
 

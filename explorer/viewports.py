@@ -210,7 +210,7 @@ class ViewPanel(QWidget):
         prev, self.state = self.state, state
         # only views whose content changed are re-rendered (scrubbing touches the prediction only)
         dirty = {"prediction", "prediction_b"}
-        src_title = f"source: {state.target}" + (f" ({state.selection.kind})" if state.selection.kind != "neutral_to_pose" else "")
+        src_title = state.source_title
         if not rebuilt and (prev is None or prev.source is not state.source or prev.target != state.target):
             _set_geometry(self._polys["source"], state.source, vertex_normals(state.source, state.faces))
             dirty.add("source")

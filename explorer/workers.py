@@ -118,6 +118,8 @@ class ModelWorker(QObject):
             try:
                 if self.session is None:
                     raise RuntimeError("the model is still loading")
+                if (slow := self.session.slow_step(sel)) is not None:
+                    self.progress.emit(slow, None)
                 self.result.emit(Predicted(self.session.compute(sel), t0))
             except Exception as e:  # noqa: BLE001 - shown in a dialog; the window survives
                 if not isinstance(e, USER_ERRORS):

@@ -56,6 +56,10 @@ class PreparedMesh:
         """Which of mu, normals, knn, surface have been computed (or given)."""
         return {k for k in ("mu", "normals", "knn", "surface") if k in self.__dict__}
 
+    def cached(self, name: str, device: torch.device) -> bool:
+        """Whether `cache(name, device, ...)` is already made."""
+        return (name, str(device)) in self._caches
+
     def cache(self, name: str, device: torch.device, make: Callable[[], object]):
         """A per-device cache entry (`make()` on first use)."""
         key = (name, str(device))

@@ -476,6 +476,14 @@ class Transfer:
         return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), "example" if example is not None else label,
                               "correctives", note=note)
 
+    def registrations_to_fit(self, mesh: PreparedMesh, kind: PairKind, poses: list[str | None]) -> list[str]:
+        """The poses among `poses` whose correctives on this mesh first need anny's template fitted and registered onto
+        it (a mesh of another topology; ~20 s each on 2 cores, then kept): for a window to say why it waits."""
+        if self.predicts_with(kind) != "correctives" or self.correctives.available(mesh.vertices, mesh.faces) is None:
+            return []
+        return [p for p in dict.fromkeys(poses) if p is not None and not mesh.cached(f"anny_view:{p}", "cpu")
+                and any(self.correctives.has(c) for c in (get_pose(p).components or (p,)))]
+
     def _anny_view(self, mesh: PreparedMesh, pose: str) -> "Correspondence":
         """How anny's vertices lie on a mesh of another topology skinned in `pose` (`registration.correspond`: a
         template fitted and registered onto it, some seconds; kept per mesh and pose)."""

@@ -209,8 +209,13 @@ def test_another_topology_reads_the_correctives_through_a_registered_template(wi
     face, bary, _ = _closest(v, skinned, faces)
     carried = v + np.einsum("nk,nkj->nj", bary, (truth - skinned)[faces[face]])
     mesh = with_fields.prepare(v, f)
+    # a window says it waits for the registration: once per mesh and pose, for the correctives only
+    assert with_fields.registrations_to_fit(mesh, KIND, ["elbowBentLf", None, "elbowBentLf"]) == ["elbowBentLf"]
+    assert with_fields.registrations_to_fit(mesh, "neutral_to_pose", ["elbowBentLf"]) == []
     out = with_fields.predict_detail(mesh, "elbowBentLf", "mean", kind=KIND)
+    assert with_fields.registrations_to_fit(mesh, KIND, ["elbowBentLf"]) == []
     own = with_fields.predict_detail(with_fields.prepare(skinned, faces), "elbowBentLf", "mean", kind=KIND)
+    assert with_fields.registrations_to_fit(with_fields.prepare(skinned, faces), KIND, ["elbowBentLf"]) == []
     explained = mesh_errors(out.vertices, carried, v)["explained"]
     by_index = mesh_errors(own.vertices, truth, skinned)["explained"]  # 0.27 (tiny fields); decimated 0.23
     assert explained > max(0.1, 0.5 * by_index) and out.gate == 1.0

@@ -46,6 +46,18 @@ def pair_states(kind: PairKind, pose: str, source_pose: str | None = None) -> tu
     return (comp, FINAL), (pose, FINAL)
 
 
+def source_state_label(kind: PairKind, pose: str, source_pose: str | None = None) -> str:
+    """In words, the state a pair kind's source is in: what a user's mesh is taken to be when it is the source."""
+    (src, variant), _ = pair_states(kind, pose, source_pose)
+    if variant == "neutral":
+        return "a neutral"
+    if variant == "skinning":
+        return f"skinned in {pose} (no correctives)"
+    if variant == "blendshape":
+        return f"unposed, with {pose}'s correctives"
+    return f"posed in {src}"
+
+
 def bank_key(kind: PairKind, pose: str, component: str | None = None) -> str:
     """The latent bank's key of a pair: the pose, or ``combo<component>`` for source_to_combo."""
     if kind == "source_to_combo":
