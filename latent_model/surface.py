@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-VERSION = 3  # of what surface_features computes (caches of it are keyed by it); 3: the torso patch alone as the centre
+VERSION = 4  # of what surface_features computes (caches of it are keyed by it); 3: the torso patch alone as the centre;
+# 4: the head named by its reach from the torso, not its height
 FORWARD = np.array([0.0, -1.0, 0.0])  # anny faces -Y (Z up); imported meshes are brought to this frame
 EXTREMITIES = ("head", "hand_left", "hand_right", "foot_left", "foot_right")
 
@@ -123,7 +124,7 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
         picks.append(i)
         fields.append(d)
         nearest = np.minimum(nearest, d)
-    order = _name_extremities(v[picks])
+    order = _name_extremities(v[picks], d_c[picks])
     extremities = {name: picks[k] for name, k in zip(EXTREMITIES, order)}
     dist = np.stack([d_c] + [fields[k] for k in order], axis=1)
     dist = _fill_unreached(v, dist, reached)
@@ -175,11 +176,15 @@ def _torso_patch(graph, band: np.ndarray, seed: int) -> np.ndarray:
     return idx[label == label[np.searchsorted(idx, seed)]]
 
 
-def _name_extremities(points: np.ndarray) -> list[int]:
-    """Indices of (head, hand left, hand right, foot left, foot right) among five extremity points:
-    the highest is the head, the two lowest the feet; left is +X."""
+def _name_extremities(points: np.ndarray, reach: np.ndarray) -> list[int]:
+    """Indices of (head, hand left, hand right, foot left, foot right) among five extremity points (5, 3):
+    the two lowest are the feet; of the other three the head is the nearest the torso over the surface (`reach`
+    (5,), geodesic from its centre), not the highest (a hand raised above the head was named the head) nor the
+    nearest the centre's vertical (hands hanging from a body bent forward are); left is +X."""
     by_z = list(np.argsort(points[:, 2]))
-    feet, hands, head = by_z[:2], by_z[2:4], by_z[4]
+    feet, upper = by_z[:2], by_z[2:]
+    head = min(upper, key=lambda k: float(reach[k]))
+    hands = [k for k in upper if k != head]
     feet.sort(key=lambda k: -points[k, 0])
     hands.sort(key=lambda k: -points[k, 0])
     return [int(head), int(hands[0]), int(hands[1]), int(feet[0]), int(feet[1])]

@@ -39,6 +39,18 @@ def test_surface_features_find_the_body_parts_in_any_rest(stances):
     assert t["armsDown"][2] < -0.8  # down
 
 
+def test_a_hand_raised_above_the_head_is_still_a_hand(generator, people):
+    """A T-pose character raising its left arm holds its hand above its head: the highest extremity is the hand, and
+    the head is still named the head (the fitted template's landmarks, the detail stage's regions read the names)."""
+    from latent_model.surface import surface_features
+
+    v = generator.pose(people[0], "shoulderRaiseLf", "tpose").skinning
+    sf = surface_features(v, generator.faces)
+    p = {k: v[i] for k, i in sf.extremities.items()}
+    assert p["hand_left"][2] > p["head"][2] and abs(p["head"][0]) < 0.05 < p["hand_left"][0]
+    assert p["hand_right"][0] < -0.3 and p["foot_left"][0] > 0 > p["foot_right"][0]
+
+
 def _inputs(n: int = 50, latent: int = 16, seed: int = 0) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
     frames = torch.linalg.qr(torch.randn(1, n, 3, 3, generator=g))[0]

@@ -14,6 +14,7 @@ from functools import cached_property
 import numpy as np
 import roma
 import torch
+from scipy.spatial.transform import Rotation
 
 from latent_model.corpus.poses import JointRotation
 
@@ -146,7 +147,7 @@ class Rig:
         if b is None:
             raise ValueError(f"unknown bone {j.bone!r}")
         rotvec = self.resolve_axis(rest, j) * np.deg2rad(j.degrees)
-        return b, roma.rotvec_to_rotmat(torch.as_tensor(rotvec)).numpy()
+        return b, Rotation.from_rotvec(rotvec).as_matrix()  # roma's through torch gave the same to 1e-15, 12x slower
 
     def bone_transforms(self, rest: RestShape, joints: tuple[JointRotation, ...],
                         base: tuple[JointRotation, ...] = ()) -> np.ndarray:
