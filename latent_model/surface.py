@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 VERSION = 4  # of what surface_features computes (caches of it are keyed by it); 3: the torso patch alone as the centre;
-# 4: the head named by its reach from the torso, not its height
+# 4: the head named by its height less its sideways offset, not its height alone
 FORWARD = np.array([0.0, -1.0, 0.0])  # anny faces -Y (Z up); imported meshes are brought to this frame
 EXTREMITIES = ("head", "hand_left", "hand_right", "foot_left", "foot_right")
 
@@ -124,7 +124,7 @@ def surface_features(vertices: np.ndarray, faces: np.ndarray, smooth: int = 20) 
         picks.append(i)
         fields.append(d)
         nearest = np.minimum(nearest, d)
-    order = _name_extremities(v[picks], d_c[picks])
+    order = _name_extremities(v[picks], centroid)
     extremities = {name: picks[k] for name, k in zip(EXTREMITIES, order)}
     dist = np.stack([d_c] + [fields[k] for k in order], axis=1)
     dist = _fill_unreached(v, dist, reached)
@@ -176,14 +176,14 @@ def _torso_patch(graph, band: np.ndarray, seed: int) -> np.ndarray:
     return idx[label == label[np.searchsorted(idx, seed)]]
 
 
-def _name_extremities(points: np.ndarray, reach: np.ndarray) -> list[int]:
+def _name_extremities(points: np.ndarray, centre: np.ndarray) -> list[int]:
     """Indices of (head, hand left, hand right, foot left, foot right) among five extremity points (5, 3):
-    the two lowest are the feet; of the other three the head is the nearest the torso over the surface (`reach`
-    (5,), geodesic from its centre), not the highest (a hand raised above the head was named the head) nor the
-    nearest the centre's vertical (hands hanging from a body bent forward are); left is +X."""
+    the two lowest are the feet; of the other three the head stands highest counting twice its sideways offset
+    from the body's centre (3,) against it. Not the highest alone (a hand raised above the head was named the
+    head), nor the nearest the torso over the surface (a hand against the thigh, joined to it by a remesh, is)."""
     by_z = list(np.argsort(points[:, 2]))
     feet, upper = by_z[:2], by_z[2:]
-    head = min(upper, key=lambda k: float(reach[k]))
+    head = max(upper, key=lambda k: float(points[k, 2] - 2.0 * abs(points[k, 0] - centre[0])))
     hands = [k for k in upper if k != head]
     feet.sort(key=lambda k: -points[k, 0])
     hands.sort(key=lambda k: -points[k, 0])
