@@ -32,6 +32,7 @@ from latent_model.nn.pose_fields import FieldCache
 from latent_model.noise_gate import GATE_HI, GATE_LO, smooth_gate
 from latent_model.prepared_mesh import PreparedMesh
 from latent_model.registration import SETTLE_LIMIT
+from latent_model.surface import joined_hands
 from latent_model.types import (PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
@@ -114,6 +115,7 @@ class Novelty:
     distance: float
     threshold: float  # 0: the bank has no calibrated threshold (no warning)
     posed: bool = False  # judged as a posed source (its threshold: the farthest validation posed state)
+    joined: tuple[tuple[str, float], ...] = ()  # hands the surface joins to the body: (name, reach) (`joined_hands`)
 
     @property
     def out_of_distribution(self) -> bool:
@@ -121,12 +123,21 @@ class Novelty:
 
     def warning(self, name: str = "the mesh") -> str | None:
         """A one-line warning for the user, or None when the mesh is within the validated range."""
-        if not self.out_of_distribution:
-            return None
-        what = "the farthest validation character's posed state" if self.posed else "the farthest validation character"
-        return (f"warning: {name} is out of distribution: its latent is {self.distance:.1f} from the nearest training "
-                f"state, beyond {self.threshold:.1f} ({what}); expect a poor prediction. "
-                f"Check its units, up axis and that it is one humanoid standing")
+        out = []
+        if self.out_of_distribution:
+            what = "the farthest validation character's posed state" if self.posed else "the farthest validation character"
+            out.append(f"warning: {name} is out of distribution: its latent is {self.distance:.1f} from the nearest "
+                       f"training state, beyond {self.threshold:.1f} ({what}); expect a poor prediction. "
+                       f"Check its units, up axis and that it is one humanoid standing")
+        if self.joined:
+            from latent_model.surface import HAND_REACH_MIN
+
+            hands = " and ".join(f"{k.split('_')[1]} {k.split('_')[0]} ({r:.2f}x as far from the torso over the surface as the head)"
+                                 for k, r in self.joined)
+            out.append(f"warning: {name}: its surface joins the {hands} to the body (every training character's hands "
+                       f"reach >= {HAND_REACH_MIN:.2f}x); arm motions will pull what the hands touch. Open the mesh with "
+                       f"a gap between the hands and the body (its rest pose, or separate shells)")
+        return " ".join(out) or None
 
 
 class Transfer:
@@ -280,7 +291,9 @@ class Transfer:
         # the distance once per mesh (27k training states: not at every slider move); the threshold as it is now
         distance = mesh.cache("novelty", f"bank:{id(self.bank)}", lambda: self.bank.distance_to_training(mesh.mu))
         posed = kind != "neutral_to_pose" and self.bank.ood_threshold_posed > 0
-        return Novelty(distance, self.bank.threshold_for(kind), posed)
+        # hands joined to the body, read from the surface features when a predictor derived them (decoder v2 does)
+        joined = tuple(joined_hands(mesh.surface).items()) if "surface" in mesh.derived() else ()
+        return Novelty(distance, self.bank.threshold_for(kind), posed, joined)
 
     def judged_novelty(self, out: TransferOutput, mesh: PreparedMesh, kind: PairKind) -> Novelty | None:
         """A prediction's novelty for the user: its own when it read the latent, else the mesh's against its kind's

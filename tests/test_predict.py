@@ -77,3 +77,29 @@ def test_predict_errors_are_clear_and_write_nothing(maya_obj, tmp_path, capsys):
     assert "point cloud" in capsys.readouterr().err
     assert _run("--mesh", src, "--pose", "elbowBentLf", "-o", tmp_path / "x.fbx") == 2
     assert not out.exists() and not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())
+
+
+def test_a_hand_joined_to_the_body_is_warned_about(tmp_path, capsys):
+    """A hand fused to the thigh (as a remesh or scan fuses a hand resting on it; here a triangle bridging the left
+    fingertip to the thigh) makes the torso-to-hand path run down the leg: `lrr predict` says which hand and the fix;
+    the same mesh without the bridge gets no such warning."""
+    from latent_model.shipped import GroundTruth, load_identity_specs
+    from latent_model.surface import surface_features
+
+    specs, _ = load_identity_specs(ShippedPaths.at().identities)
+    spec = next(s for s in specs if s.split == "test" and s.rest == "armsDown30")
+    gt = GroundTruth([spec])
+    v = gt.state(spec.id, None, "neutral").astype(np.float64)
+    faces = np.asarray(gt.faces, np.int64)
+    sf = surface_features(v, faces)
+    tip = sf.extremities["hand_left"]
+    far = np.flatnonzero((sf.coords[:, 2] > 0.3) & (v[:, 0] > 0))  # the left side, away from the hand: the thigh
+    thigh = far[np.argmin(np.linalg.norm(v[far] - v[tip], axis=1))]
+    near = faces[(faces == tip).any(axis=1)][0]
+    bridged = np.concatenate([faces, [[tip, thigh, next(k for k in near if k != tip)]]])
+    for name, f in (("joined.obj", bridged), ("apart.obj", faces)):
+        trimesh.Trimesh(v, f, process=False).export(tmp_path / name)
+        assert _run("--mesh", tmp_path / name, "--pose", "elbowBentLf", "-o", tmp_path / f"out_{name}") == 0
+        printed = capsys.readouterr().out
+        assert ("joins the left hand" in printed and "gap between the hands" in printed) == (name == "joined.obj"), printed
+        assert "right hand" not in printed
