@@ -49,6 +49,8 @@ HAND_REACH_MIN = 1.0
 def joined_hands(features: SurfaceFeatures) -> dict[str, float]:
     """{hand: its reach from the torso over the head's} for the hands reaching less than `HAND_REACH_MIN`: hands the
     surface joins to the body elsewhere than at the shoulder."""
+    if not {"head", "hand_left", "hand_right"} <= features.extremities.keys():
+        return {}  # features kept without their extremities (`surface_cache`: corpus states, not a user's mesh)
     reach = lambda k: float(features.coords[features.extremities[k], 0])  # noqa: E731  centre distance / height
     head = max(reach("head"), 1e-6)
     return {k: reach(k) / head for k in ("hand_left", "hand_right") if reach(k) / head < HAND_REACH_MIN}
