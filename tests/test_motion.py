@@ -663,3 +663,9 @@ def test_surface_features_of_a_corpus_state_are_kept_and_read_back(tiny_corpus, 
     assert surface_cache.load_features(path) is not None
     np.testing.assert_array_equal(surface_cache.state_features(c, s, None).coords, fresh.coords)
     assert len(list(tmp_path.iterdir())) == 1
+    # kept without the extremities' names: the joined-hands check does not judge them (it raised, and failed an
+    # evaluation), while the same features computed fresh are judged
+    from latent_model.surface import joined_hands
+
+    assert again.extremities == {} and joined_hands(again) == {}
+    assert joined_hands(fresh) == {} and fresh.extremities.keys() >= {"head", "hand_left"}
