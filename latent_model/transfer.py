@@ -32,7 +32,7 @@ from latent_model.nn.pose_fields import FieldCache
 from latent_model.noise_gate import GATE_HI, GATE_LO, smooth_gate
 from latent_model.prepared_mesh import PreparedMesh
 from latent_model.registration import SETTLE_LIMIT
-from latent_model.surface import joined_hands
+from latent_model.surface import HAND_REACH_MIN, joined_hands
 from latent_model.types import (PairKind, Predictor, Strategy, check_blend, check_magnitude, check_pair_kind,
                                  parse_strategy)
 
@@ -130,9 +130,8 @@ class Novelty:
                        f"training state, beyond {self.threshold:.1f} ({what}); expect a poor prediction. "
                        f"Check its units, up axis and that it is one humanoid standing")
         if self.joined:
-            from latent_model.surface import HAND_REACH_MIN
-
-            hands = " and ".join(f"{k.split('_')[1]} {k.split('_')[0]} ({r:.2f}x as far from the torso over the surface as the head)"
+            side = lambda k: " ".join(reversed(k.split("_")))  # noqa: E731  hand_left -> left hand
+            hands = " and ".join(f"{side(k)} ({r:.2f}x as far from the torso over the surface as the head)"
                                  for k, r in self.joined)
             out.append(f"warning: {name}: its surface joins the {hands} to the body (every training character's hands "
                        f"reach >= {HAND_REACH_MIN:.2f}x); arm motions will pull what the hands touch. Open the mesh with "
