@@ -445,7 +445,7 @@ class Transfer:
             label = s.split(":", 1)[1]
             person = label.split("@")[0]
         fields = self.correctives
-        other = mesh.cache("corrective_note", f"fields:{id(fields)}", lambda: fields.available(mesh.vertices, mesh.faces))
+        other = self._topology_note(mesh)
         note = other if example is not None else None  # another topology reads anny's through a registered template
         if example is not None and not example and note is None:
             note = ("no corrective read from the example pair: the corrective fields follow anny's topology by vertex "
@@ -488,10 +488,15 @@ class Transfer:
         return TransferOutput(pred, pred, 1.0 if moved else 0.0, float("inf"), "example" if example is not None else label,
                               "correctives", note=note)
 
+    def _topology_note(self, mesh: PreparedMesh) -> str | None:
+        """`CorrectiveFields.available` of the mesh, once per mesh (its triangles' digest: not at every slider move)."""
+        fields = self.correctives
+        return mesh.cache("corrective_note", f"fields:{id(fields)}", lambda: fields.available(mesh.vertices, mesh.faces))
+
     def registrations_to_fit(self, mesh: PreparedMesh, kind: PairKind, poses: list[str | None]) -> list[str]:
         """The poses among `poses` whose correctives on this mesh first need anny's template fitted and registered onto
         it (a mesh of another topology; ~20 s each on 2 cores, then kept): for a window to say why it waits."""
-        if self.predicts_with(kind) != "correctives" or self.correctives.available(mesh.vertices, mesh.faces) is None:
+        if self.predicts_with(kind) != "correctives" or self._topology_note(mesh) is None:
             return []
         return [p for p in dict.fromkeys(poses) if p is not None and not mesh.cached(f"anny_view:{p}", "cpu")
                 and any(self.correctives.has(c) for c in (get_pose(p).components or (p,)))]
