@@ -116,6 +116,12 @@ class MotionDecoderConfig:
     # (train/rest_augment.py); 2 read a character's own delta far better in an unseen rest but not the mean delta
     # (validation, docs/history.md), and cost 8 min of Phase B
     extra_rests: int = 0
+    # their angle ranges (degrees; (): the training rests' own): DCC tools export T-poses, arms level and elbows
+    # straight, just past the training rests' highest arms (38) and straightest elbows (-38)
+    extra_rest_arms: tuple[float, ...] = ()
+    extra_rest_elbows: tuple[float, ...] = ()
+    # a drawn rest stays this far (its largest angle difference) from every validation and test rest
+    extra_rest_margin: float = 10.0
     # each training character is also posed in `combos_per_character` of this many seeded combinations of 2-3 of
     # its single body poses (train/combo_augment.py; none shares two poses with an evaluated example combination)
     extra_combos: int = 120
@@ -153,6 +159,11 @@ class MotionDecoderConfig:
         if min(self.mean_prob, self.other_prob) < 0 or self.mean_prob + self.other_prob > 1:
             raise ValueError(f"MotionDecoderConfig.mean_prob ({self.mean_prob}) and other_prob ({self.other_prob}) "
                              "are probabilities of one draw: each >= 0, together <= 1")
+        for name in ("extra_rest_arms", "extra_rest_elbows"):
+            r = getattr(self, name)
+            if r and (len(r) != 2 or r[0] >= r[1]):
+                raise ValueError(f"MotionDecoderConfig.{name} {r} is (lowest, highest) degrees, or () for the "
+                                 "training rests' range")
 
     def reads_as(self, kind: PairKind) -> PairKind:
         """The pair kind the decoder is conditioned on for a pair of `kind` (itself when trained on it)."""
@@ -276,6 +287,8 @@ class Preset:
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, delta_dims=0))
             if "extra_rests" not in stored:  # stored before the drawn rests: trained on the corpus's alone
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_rests=0))
+            if "extra_rest_margin" not in stored:  # stored before the margin: drawn within the training ranges
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, extra_rest_margin=0.0))
             if "other_prob" not in stored:  # stored before it: own or mean deltas only
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, other_prob=0.0))
             if "extra_combos" not in stored:  # stored before the drawn combinations: the corpus's alone

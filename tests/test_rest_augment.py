@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from latent_model.corpus.rests import REST_CONFIGS, TEST_RESTS, VAL_RESTS, RestConfig, get_rest
-from latent_model.train.rest_augment import ANGLES, random_rests, rest_ranges
+from latent_model.train.rest_augment import ANGLES, held_out_distance, random_rests, rest_ranges
 from latent_model.types import FINAL
 
 
@@ -25,6 +25,32 @@ def test_drawn_rests_repeat_with_the_seed_spread_over_the_training_ranges_and_le
     # the ranges are the training rests': the held-out T-pose's level arms stay unseen
     assert ranges["arms"][1] < REST_CONFIGS["tpose"].arms
     assert all(r.split == "train" for r in drawn) and not {r.name for r in drawn} & {*VAL_RESTS, *TEST_RESTS}
+
+
+def test_drawn_rests_in_wider_ranges_keep_their_margin_from_every_held_out_rest():
+    """Ranges past the training rests' (a DCC T-pose's level, straight arms) are drawn, but never within the margin
+    of a validation or test rest; without a margin some draws come close to one."""
+    wide = {"arms": (-40.0, 55.0), "elbows": (-45.0, 0.0)}
+    drawn = random_rests(np.random.default_rng(3), 200, ranges=wide, margin=10.0)
+    assert drawn == random_rests(np.random.default_rng(3), 200, ranges=wide, margin=10.0)
+    arms, elbows = [r.arms for r in drawn], [r.elbows for r in drawn]
+    assert max(arms) > 50 and min(elbows) < -42  # past the training rests' 38 and -38
+    assert -40 <= min(arms) and max(arms) <= 55 and -45 <= min(elbows) and max(elbows) <= 0
+    held = [r for r in REST_CONFIGS.values() if r.split != "train"]
+    for r in drawn:
+        assert all(max(abs(getattr(r, a) - getattr(h, a)) for a in ANGLES) >= 10.0 for h in held), r
+    close = random_rests(np.random.default_rng(3), 200, ranges=wide)
+    assert min(held_out_distance(vars(r)) for r in close) < 10.0
+    assert held_out_distance(vars(REST_CONFIGS["tpose"])) == 0.0
+
+
+def test_motion_config_checks_its_drawn_rest_ranges():
+    from latent_model.config import MotionDecoderConfig
+
+    MotionDecoderConfig(extra_rest_arms=(-40.0, 55.0))
+    for bad in ((55.0, -40.0), (1.0,), (0.0, 1.0, 2.0)):
+        with pytest.raises(ValueError, match="extra_rest_arms"):
+            MotionDecoderConfig(extra_rest_arms=bad)
 
 
 def test_a_drawn_rest_is_posed_as_the_corpus_poses_a_named_one(tiny_corpus):
@@ -68,7 +94,7 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
     monkeypatch.setattr(motion, "train_motion_decoder", spy)
     p = preset("tiny")
     m = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=20, batch=4, vertices=64,
-                            extra_rests=2)
+                            extra_rests=2, extra_rest_arms=(50.0, 60.0), extra_rest_margin=0.0)
     p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=m))
     torch.manual_seed(0)
     model = LatentReRig(p.model).eval()
@@ -83,13 +109,14 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
         assert i in extra and np.array_equal(cache.get(i)[0], extra.neutral[k])
         np.testing.assert_allclose(table.delta[(i, pose)], extra.mu_posed[k, 0] - extra.mu_neutral[k])
         assert not np.allclose(extra.target(i, pose), extra.neutral[k])  # the pose moves it
+    assert all(50.0 <= r.arms <= 60.0 for r in extra.rests)  # the config's arm range, past the training rests'
     # each drawn character stands differently from its person's bind character
     assert all(np.abs(extra.neutral[k] - tiny_corpus.vertices(tiny_corpus.state(i, None, "neutral"))).max() > 0.01
                for k, i in enumerate(extra.person))
 
 
 @pytest.mark.parametrize("name, value", [("extra_rests", 2), ("extra_combos", 40), ("other_prob", 0.3),
-                                         ("averaged_input", True), ("other_mix", 0.5)])
+                                         ("averaged_input", True), ("other_mix", 0.5), ("extra_rest_margin", 10.0)])
 def test_a_preset_stored_before_a_decoder_training_option_reads_as_trained_without_it(name, value):
     """Drawn rests, drawn combinations, another character's delta, the averaged count: a checkpoint's preset from
     before the option existed was trained without it, whatever the option's default is now."""

@@ -300,8 +300,10 @@ def train_motion_phase(model, preset, corpus: Corpus, run_dir: Path, device: tor
     cache = CharacterCache(corpus, Path(run_dir) / "surface")
     extra = None
     if m.extra_rests:
+        ranges = {a: tuple(r) for a, r in (("arms", m.extra_rest_arms), ("elbows", m.extra_rest_elbows)) if r}
         extra = extra_characters(model, corpus, train_ids, poses, m.extra_rests, preset.train.seed + 6000, device,
-                                 workers=min(2, os.cpu_count() or 1), log=log)
+                                 workers=min(2, os.cpu_count() or 1), log=log, ranges=ranges,
+                                 margin=m.extra_rest_margin)
         cache.add(extra)
         table.add(extra)
     combos = None

@@ -1,11 +1,13 @@
 """More rest configurations for decoder v2's training pairs: each training person of the corpus also
-stands in `per_person` random rests, drawn within the angle ranges of the training rests (corpus/rests.py).
+stands in `per_person` random rests, drawn within the angle ranges of the training rests (corpus/rests.py) or
+wider ones, never within a margin of a validation or test rest.
 
 Why: the corpus stands each training person in bind and one of six fixed rests, and the decoder learnt
 those; it read unseen rests far worse (validation rests, elbowBentLf 0.56 explained; a character's own
 delta 0.19). Posing through the rig is cheap (0.04 s a mesh); each state's latent needs an SDF sampling
-(0.1 s) and the frozen encoder. The draws stay inside the training rests' ranges, so no validation or
-test rest is seen; they are seeded, so the same config gives the same characters.
+(0.1 s) and the frozen encoder. A draw closer than the margin (the largest of its four angle differences) to a
+validation or test rest is drawn again, so none of those is seen; the draws are seeded, so the same config gives
+the same characters.
 """
 from __future__ import annotations
 
@@ -30,11 +32,24 @@ def rest_ranges() -> dict[str, tuple[float, float]]:
     return {a: (min(getattr(r, a) for r in rests), max(getattr(r, a) for r in rests)) for a in ANGLES}
 
 
-def random_rests(rng: np.random.Generator, n: int, prefix: str = "drawn") -> list[RestConfig]:
-    """`n` rest configurations, each angle uniform in its training range (`rest_ranges`)."""
-    ranges = rest_ranges()
-    return [RestConfig(f"{prefix}{k:03d}", **{a: round(float(rng.uniform(*ranges[a])), 2) for a in ANGLES})
-            for k in range(n)]
+def held_out_distance(angles: dict[str, float]) -> float:
+    """The largest angle difference (degrees) between `angles` and the nearest validation or test rest."""
+    held = [r for r in REST_CONFIGS.values() if r.split != "train"]
+    return min(max(abs(angles[a] - getattr(r, a)) for a in ANGLES) for r in held)
+
+
+def random_rests(rng: np.random.Generator, n: int, prefix: str = "drawn",
+                 ranges: dict[str, tuple[float, float]] | None = None, margin: float = 0.0) -> list[RestConfig]:
+    """`n` rest configurations, each angle uniform in its range (`ranges`, default `rest_ranges()`; an angle it
+    omits keeps its training range), each at least `margin` degrees (`held_out_distance`) from every validation
+    and test rest."""
+    ranges = {**rest_ranges(), **(ranges or {})}
+    out = []
+    while len(out) < n:
+        angles = {a: round(float(rng.uniform(*ranges[a])), 2) for a in ANGLES}
+        if held_out_distance(angles) >= margin:
+            out.append(RestConfig(f"{prefix}{len(out):03d}", **angles))
+    return out
 
 
 @dataclass
@@ -107,14 +122,16 @@ def _character(args) -> tuple:
 
 
 def extra_characters(model, corpus, train_ids: list[int], poses: tuple[str, ...], per_person: int, seed: int,
-                     device, workers: int = 2, log=print) -> ExtraCharacters:
-    """Every training person of `corpus` (its bind character among `train_ids`) in `per_person` random rests,
-    posed in `poses`, with the frozen encoder's latent means of every state."""
+                     device, workers: int = 2, log=print, ranges: dict[str, tuple[float, float]] | None = None,
+                     margin: float = 0.0) -> ExtraCharacters:
+    """Every training person of `corpus` (its bind character among `train_ids`) in `per_person` random rests
+    (`random_rests` with `ranges` and `margin`), posed in `poses`, with the frozen encoder's latent means of every
+    state."""
     rng = np.random.default_rng([seed, 7])
     persons = [i for i in train_ids if corpus.identities[i].rest == "bind"]
     stands, seeds = [], []
     for n, i in enumerate(persons):
-        for k, rest in enumerate(random_rests(rng, per_person, prefix=f"drawn{n:03d}_")):
+        for k, rest in enumerate(random_rests(rng, per_person, f"drawn{n:03d}_", ranges, margin)):
             stands.append((i, rest))
             seeds.append([seed, n, k])
     return characters_in_rests(model, corpus, stands, poses, seeds, device, workers, log)
