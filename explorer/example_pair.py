@@ -11,6 +11,7 @@ from collections.abc import Generator
 from dataclasses import replace
 from pathlib import Path
 
+from latent_model.facing import face_front_pair
 from latent_model.meshio import load_example_pair
 
 from explorer.results import ExamplePair
@@ -82,6 +83,10 @@ def read_example_steps(transfer, neutral: str | Path, posed: str | Path, up: str
     yield f"reading the example pair {Path(neutral).name} → {Path(posed).name}", None
     stamp = file_stamp(neutral, posed)  # before reading: a file rewritten meanwhile is read again next time
     a, a1 = load_example_pair(neutral, posed, up=up, units=units)
+    notes: list[str] = []
+    a, a1 = face_front_pair(transfer, a, a1, up_known=up != "auto", progress=notes.append)
+    if notes:
+        yield notes[0], 0.05
     # one seed for both: with one topology the SDF samples move with the surface, and most of the
     # sampling noise cancels in the delta (Transfer.example_delta)
     prepared = []

@@ -19,6 +19,7 @@ from PySide6.QtWidgets import (QFileDialog, QLabel, QMainWindow, QMessageBox, QP
                                QSplitter)
 
 from latent_model.atomic import atomic_write
+from latent_model.facing import face_front
 from latent_model.meshio import EXPORT_FORMATS, FORMATS, UserMesh, load_mesh
 from latent_model.types import PairKind
 
@@ -367,6 +368,8 @@ class MainWindow(QMainWindow):
         def job():
             yield f"opening {Path(path).name}", None
             m = mesh if mesh is not None else load_mesh(path)
+            yield f"encoding {Path(path).name}", 0.2
+            m = face_front(s.transfer, m, kind)  # read facing another axis when the model finds it novel as it is
             name = s.add_mesh(m)
             yield f"encoding {name}", 0.5
             try:

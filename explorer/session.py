@@ -34,8 +34,9 @@ import numpy as np
 
 from latent_model.corpus.pairs import pair_states, split_bank_key
 from latent_model.corpus.sdf import vertex_normals
+from latent_model.facing import face_front
 from latent_model.meshio import UserMesh, export_mesh, from_identity, load_mesh
-from latent_model.types import FINAL, PAIR_KINDS
+from latent_model.types import FINAL, PAIR_KINDS, PairKind
 
 from explorer.events import Event
 from explorer.example_pair import ExamplePairs, Progress, read_example_steps
@@ -197,9 +198,11 @@ class Session:
         return sel
 
     # -------------------------------------------------------------- meshes
-    def open_mesh(self, path: str | Path, up: str = "auto", units: str = "auto") -> str:
-        """Load a user's mesh (MeshError on bad files) and add it to the targets; returns its name."""
-        return self.add_mesh(load_mesh(path, up=up, units=units))
+    def open_mesh(self, path: str | Path, up: str = "auto", units: str = "auto",
+                  kind: PairKind = "neutral_to_pose") -> str:
+        """Load a user's mesh (MeshError on bad files), facing front (`facing.face_front`, for a source of pair kind
+        `kind`), and add it to the targets; returns its name."""
+        return self.add_mesh(face_front(self.transfer, load_mesh(path, up=up, units=units), kind, up_known=up != "auto"))
 
     def add_mesh(self, m: UserMesh) -> str:
         """Add a loaded mesh to the targets under a name no other target has; returns the name."""

@@ -3,7 +3,9 @@
 The model works in anny's frame: metres, Z up, the character faces -Y, +X is the character's
 left, origin near the pelvis. A user's file may be Y-up centimetres (a Maya export), Z-up
 millimetres, etc. `load_mesh` detects the up axis and the units from the bounding box (a human
-is 1.4-2.1 m tall; flags override the guess), places the body like the model's characters,
+is 1.4-2.1 m tall; flags override the guess), reads the character as facing the up axis's
+convention (Y-up: +Z, Z-up: -Y) or the axis it is told (a character made facing +X, as Unreal
+exports them; `latent_model/facing.py` finds it with the model), places the body like the model's characters,
 and stores the mapping so `export_mesh` can write the result back in the user's frame and
 units, with the input's vertex order and faces (an OBJ input is rewritten line by line, so
 groups, UVs and materials survive).
@@ -24,7 +26,7 @@ import numpy as np
 
 from latent_model.atomic import atomic_write_bytes
 from latent_model.errors import UserFacingError
-from latent_model.types import Units, UpAxis
+from latent_model.types import Facing, Units, UpAxis
 
 FORMATS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")  # what load_mesh reads
 EXPORT_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")  # what export_mesh writes (the one list)
@@ -44,6 +46,9 @@ _PLACED_MEDIAN_MM = (80.0, 100.0)  # x, y tolerance of that median
 # Y-up (character facing +Z, left hand at +X) -> Z-up facing -Y: rotate +90 deg about X.
 _R_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _R_Z_UP = np.eye(3)
+_AXES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0),
+         "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
+CONVENTIONAL_FACING = {"y": "+z", "z": "-y"}  # the axis a file of each up axis is read as facing by default
 
 
 class MeshError(UserFacingError, ValueError):
@@ -68,12 +73,15 @@ class Frame:
         """(V, 3) model coordinates -> (V, 3) float64 user coordinates (inverse of to_model)."""
         return ((np.asarray(model, np.float64) - self.offset) / self.scale) @ self.R
 
+    facing: str = ""  # the file axis the character faces ("+z"); "" for the up axis's convention
+
     def describe(self) -> str:
-        return f"{self.units}, {self.up.upper()}-up"
+        facing = f", facing {self.facing.upper()}" if self.facing else ""
+        return f"{self.units}, {self.up.upper()}-up{facing}"
 
     def to_dict(self) -> dict:
         return {"up": self.up, "units": self.units, "R": self.R.tolist(), "scale": self.scale,
-                "offset": self.offset.tolist()}
+                "offset": self.offset.tolist(), "facing": self.facing}
 
 
 IDENTITY_FRAME = Frame("z", "m")
@@ -209,15 +217,33 @@ def _check(path: str, v: np.ndarray, f: np.ndarray) -> None:
         raise MeshError(f"{path}: only {len(v)} vertices; a character mesh is needed")
 
 
+def _yaw_facing_front(forward: np.ndarray) -> np.ndarray:
+    """(3, 3) the rotation about Z that turns the horizontal unit vector `forward` to the model's front, -Y."""
+    angle = np.arctan2(forward[0], -forward[1])  # forward's angle from -Y, towards +X
+    c, s = np.cos(-angle), np.sin(-angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def horizontal_axes(up: str) -> tuple[str, ...]:
+    """The file axes a character standing along `up` ("y" | "z") may face, its convention first."""
+    return (CONVENTIONAL_FACING[up], *(a for a in _AXES if a[1] != up and a != CONVENTIONAL_FACING[up]))
+
+
+def _axis_name(v: np.ndarray) -> str:
+    k = int(np.argmax(np.abs(v)))
+    return ("+" if v[k] > 0 else "-") + "xyz"[k]
+
+
 def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto", name: str = "mesh",
-                 placement: str = "auto") -> Frame:
+                 placement: str = "auto", facing: Facing = "auto") -> Frame:
     """The mapping from a file's frame into the model's.
 
     up: "auto" picks the larger of the Y and Z bounding-box extents (a standing human is taller
     than deep); units: "auto" picks m/cm/mm so that the height is nearest a human's 1.4-2.1 m.
+    facing: the file axis the character faces; "auto": the up axis's convention (Y-up: +Z, Z-up: -Y).
     placement: "auto" re-centres like the model's characters unless the mesh is already Z-up
-    metres and placed like them, in their neutral or in a pose (then it is kept), "keep" never moves it,
-    "centre" always does.
+    metres, facing -Y and placed like them, in their neutral or in a pose (then it is kept), "keep" never moves
+    it, "centre" always does.
     Raises MeshError for an absurd scale or a bad flag."""
     v = np.asarray(vertices, np.float64)
     ext = np.ptp(v, axis=0)
@@ -227,8 +253,18 @@ def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto
         raise MeshError(f"units {units!r}: use {', '.join(get_args(Units))}")
     if placement not in ("auto", "keep", "centre"):
         raise MeshError(f"placement {placement!r}: use auto, keep or centre")
+    if facing not in get_args(Facing):
+        raise MeshError(f"facing {facing!r}: use {', '.join(get_args(Facing))}")
     up_axis = up if up != "auto" else ("y" if ext[1] > ext[2] else "z")
     R = _R_Y_UP if up_axis == "y" else _R_Z_UP
+    forward = R @ np.array(_AXES[CONVENTIONAL_FACING[up_axis] if facing == "auto" else facing])
+    if abs(forward[2]) > 0.5:
+        raise MeshError(f"{name}: facing {facing.upper()} is the up axis ({up_axis.upper()}); a standing character "
+                        f"faces a horizontal axis: pass --facing {' or '.join(horizontal_axes(up_axis))}")
+    turned = not np.allclose(forward, [0.0, -1.0, 0.0])
+    if turned:
+        R = _yaw_facing_front(forward) @ R
+    facing_name = _axis_name(R.T @ np.array([0.0, -1.0, 0.0])) if turned else ""
     height = float(ext[1] if up_axis == "y" else ext[2])
     if not height > 0:
         raise MeshError(f"{name}: the mesh is flat along its up axis ({up_axis.upper()}); pass --up if the guess is wrong")
@@ -254,7 +290,7 @@ def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto
     if placement == "keep" or (placement == "auto" and up_axis == "z" and unit == "m"
                                and (np.all(np.abs(shift) < np.array([0.05, 0.1, 0.1])) or posed_in_place)):
         shift = np.zeros(3)
-    return Frame(up_axis, unit, R.copy(), scale, shift)
+    return Frame(up_axis, unit, R.copy(), scale, shift, facing_name)
 
 
 def weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -293,14 +329,14 @@ def sdf_shell_faces(vertices: np.ndarray, faces: np.ndarray, min_area_fraction: 
 
 def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up: UpAxis = "auto",
                 units: Units = "auto", placement: str = "auto", source_path: Path | None = None,
-                source_text: str | None = None, frame: Frame | None = None) -> UserMesh:
+                source_text: str | None = None, frame: Frame | None = None, facing: Facing = "auto") -> UserMesh:
     """A UserMesh from arrays in some user frame (see `detect_frame`; `frame` given: that one, as for the
     posed mesh of an example pair, which must stay where its neutral is)."""
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     f = np.asarray(faces, np.int64).reshape(-1, 3) if np.size(faces) else np.zeros((0, 3), np.int64)
     _check(name, v, f)
     if frame is None:
-        frame = detect_frame(v, up, units, name, placement)
+        frame = detect_frame(v, up, units, name, placement, facing)
     wv, wf, inv = weld(v, f)
     keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
     wf = wf[keep]
@@ -311,18 +347,18 @@ def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up:
 
 
 def load_mesh(path: str | Path, up: UpAxis = "auto", units: Units = "auto", placement: str = "auto",
-              frame: Frame | None = None) -> UserMesh:
+              frame: Frame | None = None, facing: Facing = "auto") -> UserMesh:
     """Read a mesh file (OBJ, PLY, STL, GLB/GLTF, OFF) and normalise it into the model frame (or `frame`)."""
     path = Path(path)
     v, f, text = read_file(path)
-    return from_arrays(v, f, path.name, up, units, placement, path, text, frame)
+    return from_arrays(v, f, path.name, up, units, placement, path, text, frame, facing)
 
 
 def load_example_pair(neutral: str | Path, posed: str | Path, up: UpAxis = "auto",
-                      units: Units = "auto") -> tuple[UserMesh, UserMesh]:
+                      units: Units = "auto", facing: Facing = "auto") -> tuple[UserMesh, UserMesh]:
     """An example pair: a character's mesh and the same mesh deformed, both in the neutral's frame
     (the posed one's bounding box would move it). Raises MeshError unless they share one topology."""
-    a = load_mesh(neutral, up, units)
+    a = load_mesh(neutral, up, units, facing=facing)
     b = load_mesh(posed, frame=a.frame)
     if b.n_file_vertices != a.n_file_vertices or not np.array_equal(a.file_faces, b.file_faces):
         raise MeshError(f"{b.name} must be {a.name} deformed (the same vertices and triangles): it has "

@@ -2,9 +2,11 @@
 
     lrr predict --mesh in.obj --pose elbowBentLf [--pose-b kneeBentLf --blend 0.3] \
         --strategy nearest --magnitude 1.0 [--kind neutral_to_pose] [--up auto|y|z] \
-        [--units auto|m|cm|mm] [--checkpoint model.safetensors --bank bank.safetensors] -o out.obj
+        [--units auto|m|cm|mm] [--facing auto|+x|-x|+y|-y|+z|-z] \
+        [--checkpoint model.safetensors --bank bank.safetensors] -o out.obj
 
-The mesh is normalised into the model frame (latent_model.meshio), prepared and predicted by
+The mesh is normalised into the model frame (latent_model.meshio; which way it faces, when not told, by the
+model: latent_model.facing), prepared and predicted by
 `Transfer.prepare` / `Transfer.predict`, and written back in the input's frame, units and
 vertex order (atomically: an existing output is replaced only by a complete file).
 """
@@ -17,8 +19,9 @@ from typing import TYPE_CHECKING, get_args
 import numpy as np
 
 from latent_model.errors import UserFacingError
+from latent_model.facing import face_front, face_front_pair
 from latent_model.meshio import EXPORT_FORMATS, FORMATS, MeshError, UserMesh, export_mesh, load_example_pair, load_mesh
-from latent_model.types import (MAGNITUDE_RANGE, PairKind, Strategy, Units, UpAxis, check_blend, check_magnitude,
+from latent_model.types import (MAGNITUDE_RANGE, Facing, PairKind, Strategy, Units, UpAxis, check_blend, check_magnitude,
                                  check_pair_kind, parse_strategy)
 
 if TYPE_CHECKING:
@@ -121,6 +124,10 @@ def _frame_model_output_arguments(p, whose: str) -> None:
     """--up, --units, --checkpoint, --bank and -o, shared by `lrr predict` and `lrr transfer`."""
     p.add_argument("--up", default="auto", choices=get_args(UpAxis), help="up axis of the file(s) (default: detected)")
     p.add_argument("--units", default="auto", choices=get_args(Units), help="units of the file(s) (default: detected)")
+    p.add_argument("--facing", default="auto", choices=get_args(Facing),
+                   help="the file axis the character faces, written --facing=+x (default: the up axis's convention, "
+                        "Y-up +Z, Z-up -Y; a mesh the model finds out of distribution that way is tried facing the "
+                        "other axes)")
     p.add_argument("--checkpoint", help="trained model (default: the shipped assets/model/model.safetensors)")
     p.add_argument("--bank", help="latent bank (default: the shipped assets/model/bank.safetensors)")
     p.add_argument("-o", "--output", required=True,
@@ -172,9 +179,11 @@ def run_cli(args) -> None:
     out = Path(args.output)
     _check_output(out)
     t0 = time.perf_counter()
-    mesh = load_mesh(args.mesh, up=args.up, units=args.units)
+    mesh = load_mesh(args.mesh, up=args.up, units=args.units, facing=args.facing)
     t_load = time.perf_counter() - t0
     transfer = load_transfer(args.checkpoint, args.bank)
+    if args.facing == "auto":
+        mesh = face_front(transfer, mesh, args.kind, up_known=args.up != "auto", progress=print)
     result, prepared, t_pred = predict_file(transfer, mesh, args.pose, args.strategy, args.magnitude,
                                             args.kind, args.pose_b, args.blend)
     verts, label = result.vertices, result.label
@@ -203,9 +212,13 @@ def run_transfer_cli(args) -> None:
     """`lrr transfer`: deform B as the example pair A -> A1 deforms A."""
     out = Path(args.output)
     _check_output(out)
-    neutral, posed = load_example_pair(args.example_neutral, args.example_posed, args.up, args.units)
-    mesh = load_mesh(args.mesh, up=args.up, units=args.units)
+    neutral, posed = load_example_pair(args.example_neutral, args.example_posed, args.up, args.units, args.facing)
+    mesh = load_mesh(args.mesh, up=args.up, units=args.units, facing=args.facing)
     transfer = load_transfer(args.checkpoint, args.bank)
+    if args.facing == "auto":
+        known = args.up != "auto"
+        neutral, posed = face_front_pair(transfer, neutral, posed, up_known=known, progress=print)
+        mesh = face_front(transfer, mesh, up_known=known, progress=print)
     result, novelty, seconds = transfer_example_file(transfer, neutral, posed, mesh, args.magnitude, args.kind)
     export_mesh(mesh, result.vertices, out)
     example = np.linalg.norm(posed.vertices - neutral.vertices, axis=1) * 1000

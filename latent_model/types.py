@@ -42,6 +42,7 @@ PoseGroup = Literal["body", "finger", "face", "mixed"]
 ColourBy = Literal["error", "displacement"]  # what colours the explorer's prediction view
 UpAxis = Literal["auto", "y", "z"]
 Units = Literal["auto", "m", "cm", "mm"]
+Facing = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]  # the file axis a character faces
 
 PRESETS: tuple[str, ...] = get_args(PresetName)
 VARIANTS: tuple[str, ...] = get_args(Variant)

@@ -86,6 +86,27 @@ def test_detection_z_up_millimetres_and_overrides(tmp_path):
         meshio.from_arrays(v * 100.0, f, units="m")  # 175 m tall
 
 
+@pytest.mark.parametrize("up, facing, turn", [("z", "+x", 90), ("z", "+y", 180), ("z", "-x", 270),
+                                              ("y", "+x", 90), ("y", "-z", 180)])
+def test_a_character_facing_another_axis_is_turned_to_face_front_and_written_back(tmp_path, up, facing, turn):
+    """--facing AXIS (an Unreal export faces +X): the model reads the character as its own characters stand,
+    facing -Y, and the result goes back in the file's frame; the facing must be horizontal."""
+    v, f = _human()
+    v = v + np.array([0.05, 0.0, 0.0]) * (v[:, 2:] > 0.5)  # not symmetric about the vertical: a turn shows
+    a = np.radians(turn)
+    turned = v @ np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]]).T
+    user = (turned @ meshio._R_Y_UP) * 100.0 if up == "y" else turned  # Y-up centimetres, or Z-up metres
+    m = meshio.from_arrays(user, f, facing=facing)
+    assert m.frame.facing == facing and f"facing {facing.upper()}" in m.summary()
+    centred = lambda x: x - x.mean(axis=0)  # noqa: E731 - a Y-up file is placed anew
+    assert np.allclose(centred(m.vertices), centred(v), atol=2e-4)  # read as standing like the model's characters
+    assert np.allclose(m.frame.to_user(m.vertices), user, atol=2e-4 * (100 if up == "y" else 1))
+    as_convention = meshio.from_arrays(user, f)  # read by its up axis's convention: turned
+    assert as_convention.frame.facing == "" and not np.allclose(centred(as_convention.vertices), centred(v), atol=0.01)
+    with pytest.raises(MeshError, match="horizontal axis"):
+        meshio.from_arrays(user, f, facing=f"+{up}")
+
+
 def test_several_components_weld_and_sdf_shells():
     v, f = _human()
     eye = trimesh.creation.icosphere(1, radius=0.012)
