@@ -5,10 +5,13 @@ The model's characters face -Y with Z up. A file is read as facing its up axis's
 +X). Read the wrong way round, its latent lies far from every training state: a validation character turned by
 90 or 180 degrees lies 35-54 from them against the threshold of 11.6, and its elbow bend explains 0.43 to -0.73
 instead of 0.88 (docs/history.md). Turned back it is itself again. So a mesh the bank finds out of distribution is
-tried facing each other horizontal axis of its file and takes the one that brings it within the threshold (the
-nearest, if several); a mesh within it is never turned, and one that no facing brings within keeps its reading
+tried facing each other horizontal axis of its file and takes one that brings it within the threshold (the
+nearest, if several, of those below); a mesh within it is never turned, and one that no facing brings within keeps its reading
 (and its warning). The up axis is read from the bounding box, and the arms of a character facing sideways in a
 Z-up file can span more than its height: unless the user named the up axis, the other one is tried too.
+A T-pose read backwards can lie within the threshold too (a test character: facing -X nearer than +X), so among
+the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 10-22 cm) come
+first; the feet alone do not decide, as a bent knee or hip puts the lowest points behind.
 """
 from __future__ import annotations
 
@@ -28,7 +31,21 @@ def facing(mesh: UserMesh, axis: str, up: str | None = None) -> UserMesh:
     """The mesh read as facing the file axis `axis` ("+x"...) with up axis `up` (default: as read), placed like the
     model's characters."""
     user = mesh.frame.to_user(mesh.vertices)
-    return with_frame(mesh, detect_frame(user, up or mesh.frame.up, mesh.frame.units, mesh.name, "auto", axis))
+    return with_frame(mesh, detect_frame(user, up or mesh.frame.up, mesh.frame.units, mesh.name, "auto", axis,
+                                         mesh.faces))
+
+
+def toes_ahead(vertices) -> float:
+    """How far (m, along -Y) the lowest 4 % of a standing mesh (V, 3; model frame) reaches ahead of its shins (8-20 %
+    of its height): positive when it faces -Y on its own feet."""
+    import numpy as np
+
+    v = np.asarray(vertices, np.float64)
+    z = (v[:, 2] - v[:, 2].min()) / max(float(np.ptp(v[:, 2])), 1e-12)
+    feet, shins = v[z < 0.04], v[(z > 0.08) & (z < 0.20)]
+    if len(feet) == 0 or len(shins) == 0:
+        return 0.0
+    return float(shins[:, 1].mean() - feet[:, 1].mean())
 
 
 def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_known: bool = False,
@@ -50,7 +67,7 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
         return mesh
     read = mesh.frame.facing or horizontal_axes(mesh.frame.up)[0]
     progress(f"{mesh.name} read facing {read.upper()} lies far from the model's characters: trying the other facings")
-    best = None
+    within = []
     ups = (mesh.frame.up,) if up_known else (mesh.frame.up, "y" if mesh.frame.up == "z" else "z")
     for up in ups:
         for axis in horizontal_axes(up):
@@ -61,9 +78,9 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
             except ValueError:  # standing along the other axis the mesh is no human's height: not this reading
                 continue
             d = distance(turned)
-            if d <= threshold and (best is None or d < best[0]):
-                best = (d, turned)
-    return mesh if best is None else best[1]
+            if d <= threshold:
+                within.append((toes_ahead(turned.vertices) <= 0, d, len(within), turned))  # toes forward first
+    return min(within)[-1] if within else mesh
 
 
 def face_front_pair(transfer, neutral: UserMesh, posed: UserMesh, up_known: bool = False,

@@ -33,10 +33,14 @@ EXPORT_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")  # what export_mesh wr
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 HUMAN_HEIGHT_M = (1.4, 2.1)  # what the detection expects
 SANE_HEIGHT_M = (0.5, 3.0)  # outside this after unit conversion the scale is absurd
-# Placement of the model's characters (anny neutral meshes, measured): bounding-box centre x = 0,
-# centre y = -0.13 m (the feet point to -Y), feet at z = -0.505 * stature.
-_ANNY_CENTRE_Y = -0.13
-_ANNY_FEET_PER_HEIGHT = -0.505
+# Placement of the model's characters, fitted on corpus v4's 112 training neutrals (every training rest): the
+# surface's area centroid at x = 0.000 (std 7 mm), y = -0.047 m (std 12 mm; the bounding box's centre moves with
+# the arms, -0.13 in bind, -0.05 in a T-pose), feet at z = -0.261 * stature - 0.371 m (residual std 46 mm). The
+# bounding-box rule before (centre y -0.13, feet -0.505 * stature) stood validation characters exported in
+# centimetres 27 mm (y) and 94 mm (z) off, some out of distribution (docs/history.md).
+_ANNY_CENTROID_XY = (0.0, -0.047)
+_ANNY_FEET_Z = (-0.261, -0.371)  # feet z = a * stature + b (metres)
+_FEET_Z_SPREAD = 0.15  # 3 residual stds: feet this far from the fit are still a placed character's
 # A posed body's bounding box moves with its limbs (a bent hip or knee: up to 30 cm), its vertices' median x and y
 # do not (measured on the corpus: within 5 cm of its neutral's; neutral medians y -0.18...-0.12): a mesh whose
 # median lies here and whose lowest point is a human's feet in the model frame is already placed.
@@ -234,13 +238,22 @@ def _axis_name(v: np.ndarray) -> str:
     return ("+" if v[k] > 0 else "-") + "xyz"[k]
 
 
+def area_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(3,) the area-weighted centroid of a surface (V, 3), (F, 3): whatever its tessellation."""
+    tri = np.asarray(vertices, np.float64)[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return (tri.mean(axis=1) * area[:, None]).sum(axis=0) / max(float(area.sum()), 1e-30)
+
+
 def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto", name: str = "mesh",
-                 placement: str = "auto", facing: Facing = "auto") -> Frame:
+                 placement: str = "auto", facing: Facing = "auto", faces: np.ndarray | None = None) -> Frame:
     """The mapping from a file's frame into the model's.
 
     up: "auto" picks the larger of the Y and Z bounding-box extents (a standing human is taller
     than deep); units: "auto" picks m/cm/mm so that the height is nearest a human's 1.4-2.1 m.
     facing: the file axis the character faces; "auto": the up axis's convention (Y-up: +Z, Z-up: -Y).
+    faces: the mesh's triangles, when known: its placement then reads the surface's area centroid (else the
+    vertices' median).
     placement: "auto" re-centres like the model's characters unless the mesh is already Z-up
     metres, facing -Y and placed like them, in their neutral or in a pose (then it is kept), "keep" never moves
     it, "centre" always does.
@@ -280,15 +293,17 @@ def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto
                         f"{h_m:.4g} m in {unit}; the model expects a human of {HUMAN_HEIGHT_M[0]}-{HUMAN_HEIGHT_M[1]} m. "
                         f"Pass --units m|cm|mm (and --up y|z) if the guess is wrong, or rescale the mesh")
     m = scale * (v @ R.T)
-    lo, hi = m.min(axis=0), m.max(axis=0)
-    want = np.array([0.0, _ANNY_CENTRE_Y, _ANNY_FEET_PER_HEIGHT * h_m])
-    have = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-    shift = want - have
+    lo = m.min(axis=0)
+    centre = area_centroid(m, faces) if faces is not None and len(faces) else np.median(m, axis=0)
+    feet = _ANNY_FEET_Z[0] * h_m + _ANNY_FEET_Z[1]
+    shift = np.array([_ANNY_CENTROID_XY[0] - centre[0], _ANNY_CENTROID_XY[1] - centre[1], feet - lo[2]])
     med = np.median(m, axis=0)
+    feet_range = (_ANNY_FEET_Z[0] * HUMAN_HEIGHT_M[1] + _ANNY_FEET_Z[1] - _FEET_Z_SPREAD,
+                  _ANNY_FEET_Z[0] * HUMAN_HEIGHT_M[0] + _ANNY_FEET_Z[1] + _FEET_Z_SPREAD)
     posed_in_place = (abs(med[0]) * 1000 < _PLACED_MEDIAN_MM[0] and abs(med[1] - _ANNY_MEDIAN_Y) * 1000 < _PLACED_MEDIAN_MM[1]
-                      and _ANNY_FEET_PER_HEIGHT * HUMAN_HEIGHT_M[1] <= lo[2] <= _ANNY_FEET_PER_HEIGHT * HUMAN_HEIGHT_M[0])
+                      and feet_range[0] <= lo[2] <= feet_range[1])
     if placement == "keep" or (placement == "auto" and up_axis == "z" and unit == "m"
-                               and (np.all(np.abs(shift) < np.array([0.05, 0.1, 0.1])) or posed_in_place)):
+                               and (np.all(np.abs(shift) < np.array([0.05, 0.1, _FEET_Z_SPREAD])) or posed_in_place)):
         shift = np.zeros(3)
     return Frame(up_axis, unit, R.copy(), scale, shift, facing_name)
 
@@ -336,7 +351,7 @@ def from_arrays(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh", up:
     f = np.asarray(faces, np.int64).reshape(-1, 3) if np.size(faces) else np.zeros((0, 3), np.int64)
     _check(name, v, f)
     if frame is None:
-        frame = detect_frame(v, up, units, name, placement, facing)
+        frame = detect_frame(v, up, units, name, placement, facing, f)
     wv, wf, inv = weld(v, f)
     keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
     wf = wf[keep]

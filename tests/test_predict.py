@@ -106,13 +106,16 @@ def test_a_hand_joined_to_the_body_is_warned_about(tmp_path, capsys):
 
 
 def test_a_character_facing_another_axis_is_found_by_the_model(tmp_path, capsys):
-    """An Unreal-style export (Z up, centimetres, facing +X) read by the file's convention (facing -Y) lies far
-    from every training state; `lrr predict` tries the other facings, reads it facing +X, and predicts what the
-    same character facing -Y gets, turned into the file's frame. Told the wrong facing, it warns instead."""
+    """An Unreal-style export (Z up, centimetres, facing +X, a T-pose) read by the file's convention (facing -Y)
+    lies far from every training state; `lrr predict` tries the other facings, reads it facing +X, and predicts
+    what the same character facing -Y gets, turned into the file's frame; neither is out of distribution once
+    placed. Told the wrong facing, it warns instead."""
     from latent_model.shipped import GroundTruth, load_identity_specs
 
     specs, _ = load_identity_specs(ShippedPaths.at().identities)
-    spec = next(s for s in specs if s.split == "test" and s.rest == "bind")
+    # a T-pose in centimetres: placed by the bounding box's centre it lay 15.5 from the training states (out of
+    # distribution, 11.6) facing front; by its surface's centroid and the fitted feet height 5.5
+    spec = next(s for s in specs if s.split == "test" and s.rest == "tpose")
     gt = GroundTruth([spec])
     v = gt.state(spec.id, None, "neutral").astype(np.float64) * 100.0  # Z up, centimetres, facing -Y
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 degrees about Z: facing +X
@@ -127,7 +130,7 @@ def test_a_character_facing_another_axis_is_found_by_the_model(tmp_path, capsys)
     d_front, d_turned = moved["front.obj"], moved["unreal.obj"] @ turn  # the turned file's motion, turned back
     assert np.abs(d_front).max() > 5.0  # the elbow bends (centimetres)
     np.testing.assert_allclose(d_turned, d_front, atol=0.1)  # the same motion, within a millimetre
-    assert _run("--mesh", tmp_path / "unreal.obj", "--pose", "elbowBentLf", "--facing=-y",
+    assert _run("--mesh", tmp_path / "unreal.obj", "--pose", "elbowBentLf", "--up", "z", "--facing=-y",
                 "-o", tmp_path / "wrong.obj") == 0
     printed = capsys.readouterr().out
     assert "is out of distribution" in printed and "facing +X" not in printed and "trying" not in printed

@@ -47,10 +47,12 @@ def test_drawn_rests_in_wider_ranges_keep_their_margin_from_every_held_out_rest(
 def test_motion_config_checks_its_drawn_rest_ranges():
     from latent_model.config import MotionDecoderConfig
 
-    MotionDecoderConfig(extra_rest_arms=(-40.0, 55.0))
+    MotionDecoderConfig(extra_rest_arms=(-40.0, 55.0), extra_rest_margin=10.0)
     for bad in ((55.0, -40.0), (1.0,), (0.0, 1.0, 2.0)):
         with pytest.raises(ValueError, match="extra_rest_arms"):
-            MotionDecoderConfig(extra_rest_arms=bad)
+            MotionDecoderConfig(extra_rest_arms=bad, extra_rest_margin=10.0)
+    with pytest.raises(ValueError, match="extra_rest_margin"):  # wider ranges need a margin from the held-out rests
+        MotionDecoderConfig(extra_rest_elbows=(-45.0, 0.0))
 
 
 def test_a_drawn_rest_is_posed_as_the_corpus_poses_a_named_one(tiny_corpus):
@@ -94,7 +96,7 @@ def test_motion_training_adds_every_training_person_in_drawn_rests(tiny_corpus, 
     monkeypatch.setattr(motion, "train_motion_decoder", spy)
     p = preset("tiny")
     m = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=20, batch=4, vertices=64,
-                            extra_rests=2, extra_rest_arms=(50.0, 60.0), extra_rest_margin=0.0)
+                            extra_rests=2, extra_rest_arms=(50.0, 60.0), extra_rest_margin=10.0)
     p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=m))
     torch.manual_seed(0)
     model = LatentReRig(p.model).eval()
