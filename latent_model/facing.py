@@ -6,8 +6,8 @@ The model's characters face -Y with Z up. A file is read as facing its up axis's
 90 or 180 degrees lies 35-54 from them against the threshold of 11.6, and its elbow bend explains 0.43 to -0.73
 instead of 0.88 (docs/history.md). Turned back it is itself again. So a mesh the bank finds out of distribution is
 tried facing each other horizontal axis of its file and takes one that brings it within the threshold (the
-nearest, if several, of those below); a mesh within it is never turned, and one that no facing brings within keeps its reading
-(and its warning). The up axis is read from the bounding box, and the arms of a character facing sideways in a
+nearest, if several, of those below); a mesh within it is never turned, and one that no facing brings within keeps
+its reading (and its warning). The up axis is read from the bounding box, and the arms of a character facing sideways in a
 Z-up file can span more than its height: unless the user named the up axis, the other one is tried too.
 A T-pose read backwards can lie within the threshold too (a test character: facing -X nearer than +X), so among
 the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 10-22 cm) come
@@ -16,6 +16,8 @@ first; the feet alone do not decide, as a bent knee or hip puts the lowest point
 from __future__ import annotations
 
 import dataclasses
+
+import numpy as np
 
 from latent_model.meshio import Frame, UserMesh, detect_frame, horizontal_axes
 from latent_model.types import PairKind
@@ -38,8 +40,6 @@ def facing(mesh: UserMesh, axis: str, up: str | None = None) -> UserMesh:
 def toes_ahead(vertices) -> float:
     """How far (m, along -Y) the lowest 4 % of a standing mesh (V, 3; model frame) reaches ahead of its shins (8-20 %
     of its height): positive when it faces -Y on its own feet."""
-    import numpy as np
-
     v = np.asarray(vertices, np.float64)
     z = (v[:, 2] - v[:, 2].min()) / max(float(np.ptp(v[:, 2])), 1e-12)
     feet, shins = v[z < 0.04], v[(z > 0.08) & (z < 0.20)]

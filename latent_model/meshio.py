@@ -68,6 +68,7 @@ class Frame:
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     scale: float = 1.0
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    facing: str = ""  # the file axis the character faces ("+x"); "" for the up axis's convention
 
     def to_model(self, user: np.ndarray) -> np.ndarray:
         """(V, 3) user coordinates -> (V, 3) float32 model coordinates."""
@@ -76,8 +77,6 @@ class Frame:
     def to_user(self, model: np.ndarray) -> np.ndarray:
         """(V, 3) model coordinates -> (V, 3) float64 user coordinates (inverse of to_model)."""
         return ((np.asarray(model, np.float64) - self.offset) / self.scale) @ self.R
-
-    facing: str = ""  # the file axis the character faces ("+z"); "" for the up axis's convention
 
     def describe(self) -> str:
         facing = f", facing {self.facing.upper()}" if self.facing else ""
@@ -294,10 +293,13 @@ def detect_frame(vertices: np.ndarray, up: UpAxis = "auto", units: Units = "auto
                         f"Pass --units m|cm|mm (and --up y|z) if the guess is wrong, or rescale the mesh")
     m = scale * (v @ R.T)
     lo = m.min(axis=0)
-    centre = area_centroid(m, faces) if faces is not None and len(faces) else np.median(m, axis=0)
-    feet = _ANNY_FEET_Z[0] * h_m + _ANNY_FEET_Z[1]
-    shift = np.array([_ANNY_CENTROID_XY[0] - centre[0], _ANNY_CENTROID_XY[1] - centre[1], feet - lo[2]])
     med = np.median(m, axis=0)
+    if faces is not None and len(faces):
+        centre, target = area_centroid(m, faces), _ANNY_CENTROID_XY
+    else:  # no faces: the vertices' median, which the vertices' density pulls (anny's dense head and hands)
+        centre, target = med, (0.0, _ANNY_MEDIAN_Y)
+    feet = _ANNY_FEET_Z[0] * h_m + _ANNY_FEET_Z[1]
+    shift = np.array([target[0] - centre[0], target[1] - centre[1], feet - lo[2]])
     feet_range = (_ANNY_FEET_Z[0] * HUMAN_HEIGHT_M[1] + _ANNY_FEET_Z[1] - _FEET_Z_SPREAD,
                   _ANNY_FEET_Z[0] * HUMAN_HEIGHT_M[0] + _ANNY_FEET_Z[1] + _FEET_Z_SPREAD)
     posed_in_place = (abs(med[0]) * 1000 < _PLACED_MEDIAN_MM[0] and abs(med[1] - _ANNY_MEDIAN_Y) * 1000 < _PLACED_MEDIAN_MM[1]
