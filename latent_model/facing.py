@@ -10,8 +10,13 @@ nearest, if several, of those below); a mesh within it is never turned, and one 
 its reading (and its warning). The up axis is read from the bounding box, and the arms of a character facing sideways in a
 Z-up file can span more than its height: unless the user named the up axis, the other one is tried too.
 A T-pose read backwards can lie within the threshold too (a test character: facing -X nearer than +X), so among
-the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 10-22 cm) come
-first; the feet alone do not decide, as a bent knee or hip puts the lowest points behind.
+the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 10-22 cm at
+1.7 m) come first. And a character with its arms at its sides turned round lies within the threshold as read
+(two validation characters: 6.5 and 5.8): a neutral (the source of `neutral_to_pose`) whose toes point clearly
+backwards is read facing the other way when that reading is within the threshold too; and out of distribution, a
+neutral is only read facing where its toes point ahead (a stylised character facing front, novel as it is, is not
+turned round because its back reading happens to lie nearer). Only a neutral: a bent knee or hip puts a posed
+mesh's lowest points behind (64-120 of 5022 posed corpus meshes).
 """
 from __future__ import annotations
 
@@ -21,6 +26,9 @@ import numpy as np
 
 from latent_model.meshio import Frame, UserMesh, detect_frame, horizontal_axes
 from latent_model.types import PairKind
+
+# at 1.7 m tall: a neutral whose toes point this far behind its shins faces the other way (corpus: +10-22 cm ahead)
+TOES_BACK_M = 0.05
 
 
 def with_frame(mesh: UserMesh, frame: Frame) -> UserMesh:
@@ -52,9 +60,9 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
                progress=lambda text: None) -> UserMesh:
     """`mesh`, or the mesh read as facing the horizontal axis of its file (and standing along the other up axis,
     unless `up_known`) under which the model finds it within its out-of-distribution threshold for a source of pair
-    kind `kind` (module docstring). Encodes the mesh once, and once per other reading only when it is out of
-    distribution; a bank without a threshold leaves it as read. `progress(text)` is told before the others are
-    tried."""
+    kind `kind`, or a neutral turned round onto its toes (module docstring). Encodes the mesh once, and once per
+    other reading only when it is out of distribution or a neutral's toes point back; a bank without a threshold
+    leaves it as read. `progress(text)` is told before the others are tried."""
     bank = transfer.bank
     threshold = bank.threshold_for(kind)
     if threshold <= 0:
@@ -63,9 +71,13 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
     def distance(m: UserMesh) -> float:
         return bank.distance_to_training(transfer.encode(m.vertices, m.sdf_faces))
 
-    if distance(mesh) <= threshold:
-        return mesh
     read = mesh.frame.facing or horizontal_axes(mesh.frame.up)[0]
+    forward = TOES_BACK_M * float(np.ptp(mesh.vertices[:, 2])) / 1.7  # toes this far ahead: a neutral's front
+    if distance(mesh) <= threshold:
+        if kind != "neutral_to_pose" or toes_ahead(mesh.vertices) > -forward:
+            return mesh
+        back = facing(mesh, ("-" if read[0] == "+" else "+") + read[1])
+        return back if distance(back) <= threshold and toes_ahead(back.vertices) > 0 else mesh
     progress(f"{mesh.name} read facing {read.upper()} lies far from the model's characters: trying the other facings")
     within = []
     ups = (mesh.frame.up,) if up_known else (mesh.frame.up, "y" if mesh.frame.up == "z" else "z")
@@ -77,9 +89,12 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
                 turned = facing(mesh, axis, up)
             except ValueError:  # standing along the other axis the mesh is no human's height: not this reading
                 continue
+            toes = toes_ahead(turned.vertices)
+            if kind == "neutral_to_pose" and toes < forward:
+                continue  # a neutral stands on its feet: a reading whose toes do not point ahead is not its front
             d = distance(turned)
             if d <= threshold:
-                within.append((toes_ahead(turned.vertices) <= 0, d, len(within), turned))  # toes forward first
+                within.append((toes <= 0, d, len(within), turned))  # toes forward first
     return min(within)[-1] if within else mesh
 
 

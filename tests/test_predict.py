@@ -134,3 +134,29 @@ def test_a_character_facing_another_axis_is_found_by_the_model(tmp_path, capsys)
                 "-o", tmp_path / "wrong.obj") == 0
     printed = capsys.readouterr().out
     assert "is out of distribution" in printed and "facing +X" not in printed and "trying" not in printed
+
+
+def test_a_neutral_turned_round_with_its_arms_down_is_read_on_its_toes(tmp_path, capsys):
+    """Turned by 180 degrees, a character with its arms at its sides still lies within the out-of-distribution
+    threshold, so only its feet say it faces the other way: as a neutral it is read facing +Y and gets the unturned
+    file's motion; as a corrective's source (a posed mesh's lowest points can lie behind) it is left as read."""
+    from latent_model.facing import toes_ahead
+    from latent_model.shipped import GroundTruth, load_identity_specs
+
+    specs, _ = load_identity_specs(ShippedPaths.at().identities)
+    spec = next(s for s in specs if s.split == "test" and s.rest == "armsDown30")
+    gt = GroundTruth([spec])
+    v = gt.state(spec.id, None, "neutral").astype(np.float64) * 100.0
+    assert toes_ahead(v / 100.0) > 0.05  # facing -Y, its toes ahead of its shins
+    turn = np.diag([-1.0, -1.0, 1.0])  # 180 degrees about Z: facing +Y
+    moved = {}
+    for name, user in (("front.obj", v), ("back.obj", v @ turn.T)):
+        trimesh.Trimesh(user, gt.faces, process=False).export(tmp_path / name)
+        assert _run("--mesh", tmp_path / name, "--pose", "elbowBentLf", "-o", tmp_path / f"out_{name}") == 0
+        printed = capsys.readouterr().out
+        assert ("facing +Y" in printed) == (name == "back.obj") and "warning" not in printed, printed
+        moved[name] = meshio.read_file(tmp_path / f"out_{name}")[0] - user
+    np.testing.assert_allclose(moved["back.obj"] @ turn, moved["front.obj"], atol=0.1)
+    assert _run("--mesh", tmp_path / "back.obj", "--pose", "elbowBentLf", "--kind",
+                "skinning_to_skinning_plus_blendshape", "-o", tmp_path / "corrective.obj") == 0
+    assert "facing +Y" not in capsys.readouterr().out
