@@ -7,8 +7,8 @@ The model's characters face -Y with Z up. A file is read as facing its up axis's
 instead of 0.88 (docs/history.md). Turned back it is itself again. So a mesh the bank finds out of distribution is
 tried facing each other horizontal axis of its file and takes one that brings it within the threshold (the
 nearest, if several, of those below); a mesh within it is never turned, and one that no facing brings within keeps
-its reading (and its warning). The up axis is read from the bounding box, and the arms of a character facing sideways in a
-Z-up file can span more than its height: unless the user named the up axis, the other one is tried too.
+its reading (and its warning). The up axis is read from the bounding box, and the arms of a character facing
+sideways in a Z-up file can span more than its height: unless the user named the up axis, the other one is tried.
 A T-pose read backwards can lie within the threshold too (a test character: facing -X nearer than +X), so among
 the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 10-22 cm at
 1.7 m) come first. And a character with its arms at its sides turned round lies within the threshold as read
