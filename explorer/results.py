@@ -139,6 +139,7 @@ class ViewState:
     example: ExamplePair | None = None  # the example pair that conditioned pose A, if one did
     framing: Framing | None = None  # what the views frame (explorer/framing.py; None: leave the camera alone)
     example_offset: np.ndarray | None = None  # (3,) where the example views draw A and A1 (`framing.example_offset`)
+    source_frame: str = ""  # an opened mesh's file frame as read ("cm, Z-up, facing +X"; meshio.Frame.describe)
 
     @property
     def target(self) -> str:
@@ -154,7 +155,8 @@ class ViewState:
         kind = self.selection.kind
         if self.pair.source is not None:
             return f"source: {self.target}" + (f" ({kind})" if kind != "neutral_to_pose" else "")
-        return f"source: {self.target}\ntaken as {source_state_label(kind, self.pair.pose, self.pair.component)}"
+        frame = f"\nfile: {self.source_frame}" if self.source_frame else ""
+        return f"source: {self.target}{frame}\ntaken as {source_state_label(kind, self.pair.pose, self.pair.component)}"
 
     @property
     def colour(self) -> ColourBy:

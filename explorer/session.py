@@ -356,8 +356,9 @@ class Session:
                         None if example is not None else sel.pose)
         offset = None if example is None else example_offset(
             framing, example.neutral.vertices, example.posed.vertices, lambda: self._example_regions(example))
+        opened = self.meshes.get(sel.target)
         return ViewState(sel, pair, prepared.faces, source, truth, truth_title, preds, time.perf_counter() - t0, t_dec,
-                         example, framing, offset)
+                         example, framing, offset, "" if opened is None else opened.frame.describe())
 
     def _example_regions(self, example: ExamplePair) -> dict[str, np.ndarray] | None:
         """The head and hands of an example's A (its surface read once per pair: about a second)."""

@@ -292,6 +292,7 @@ def test_opened_mesh_has_no_truth_and_exports_in_its_frame(session, tmp_path):
     back, _, _ = meshio.read_file(out)
     assert back.shape == user.shape and np.abs(back - user).max() < 60  # centimetres, Y up
     assert st.source_title.endswith("taken as a neutral")
+    assert st.source_title.startswith(f"source: {name}\nfile: cm, Y-up")  # how the file was read: units, up axis
     with pytest.raises(ValueError, match="no such file"):
         session.open_mesh(tmp_path / "nope.obj")
 
