@@ -35,6 +35,26 @@ def _run(*argv):
     return main(["predict", *map(str, argv)])
 
 
+def _front_and_turned(tmp_path, capsys, spec_rest: str, turn: np.ndarray, facing: str) -> tuple[dict, tuple]:
+    """A test character of `spec_rest` in Z-up centimetres facing -Y ("front.obj") and turned by `turn` about Z
+    ("turned.obj"), each predicted with elbowBentLf by `lrr predict`: ({name: motion in the file's frame}, the two
+    files), checking that only the turned one is read `facing` and neither is warned about."""
+    from latent_model.shipped import GroundTruth, load_identity_specs
+
+    specs, _ = load_identity_specs(ShippedPaths.at().identities)
+    spec = next(s for s in specs if s.split == "test" and s.rest == spec_rest)
+    gt = GroundTruth([spec])
+    v = gt.state(spec.id, None, "neutral").astype(np.float64) * 100.0  # Z up, centimetres, facing -Y
+    moved = {}
+    for name, user in (("front.obj", v), ("turned.obj", v @ turn.T)):
+        trimesh.Trimesh(user, gt.faces, process=False).export(tmp_path / name)
+        assert _run("--mesh", tmp_path / name, "--pose", "elbowBentLf", "-o", tmp_path / f"out_{name}") == 0
+        printed = capsys.readouterr().out
+        assert (f"facing {facing}" in printed) == (name == "turned.obj") and "warning" not in printed, printed
+        moved[name] = meshio.read_file(tmp_path / f"out_{name}")[0] - user
+    return moved, (tmp_path / "front.obj", tmp_path / "turned.obj")
+
+
 def test_predict_writes_the_users_frame(maya_obj, tmp_path, capsys):
     src, user = maya_obj
     out = tmp_path / "posed.obj"
@@ -110,27 +130,14 @@ def test_a_character_facing_another_axis_is_found_by_the_model(tmp_path, capsys)
     lies far from every training state; `lrr predict` tries the other facings, reads it facing +X, and predicts
     what the same character facing -Y gets, turned into the file's frame; neither is out of distribution once
     placed. Told the wrong facing, it warns instead."""
-    from latent_model.shipped import GroundTruth, load_identity_specs
-
-    specs, _ = load_identity_specs(ShippedPaths.at().identities)
     # a T-pose in centimetres: placed by the bounding box's centre it lay 15.5 from the training states (out of
     # distribution, 11.6) facing front; by its surface's centroid and the fitted feet height 5.5
-    spec = next(s for s in specs if s.split == "test" and s.rest == "tpose")
-    gt = GroundTruth([spec])
-    v = gt.state(spec.id, None, "neutral").astype(np.float64) * 100.0  # Z up, centimetres, facing -Y
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 degrees about Z: facing +X
-    moved = {}
-    for name, user in (("front.obj", v), ("unreal.obj", v @ turn.T)):
-        trimesh.Trimesh(user, gt.faces, process=False).export(tmp_path / name)
-        assert _run("--mesh", tmp_path / name, "--pose", "elbowBentLf", "-o", tmp_path / f"out_{name}") == 0
-        printed = capsys.readouterr().out
-        assert ("facing +X" in printed) == (name == "unreal.obj") and "warning" not in printed, printed
-        out, _, _ = meshio.read_file(tmp_path / f"out_{name}")
-        moved[name] = out - user
-    d_front, d_turned = moved["front.obj"], moved["unreal.obj"] @ turn  # the turned file's motion, turned back
+    moved, (_, unreal) = _front_and_turned(tmp_path, capsys, "tpose", turn, "+X")
+    d_front, d_turned = moved["front.obj"], moved["turned.obj"] @ turn  # the turned file's motion, turned back
     assert np.abs(d_front).max() > 5.0  # the elbow bends (centimetres)
     np.testing.assert_allclose(d_turned, d_front, atol=0.1)  # the same motion, within a millimetre
-    assert _run("--mesh", tmp_path / "unreal.obj", "--pose", "elbowBentLf", "--up", "z", "--facing=-y",
+    assert _run("--mesh", unreal, "--pose", "elbowBentLf", "--up", "z", "--facing=-y",
                 "-o", tmp_path / "wrong.obj") == 0
     printed = capsys.readouterr().out
     assert "is out of distribution" in printed and "facing +X" not in printed and "trying" not in printed
@@ -141,22 +148,11 @@ def test_a_neutral_turned_round_with_its_arms_down_is_read_on_its_toes(tmp_path,
     threshold, so only its feet say it faces the other way: as a neutral it is read facing +Y and gets the unturned
     file's motion; as a corrective's source (a posed mesh's lowest points can lie behind) it is left as read."""
     from latent_model.facing import toes_ahead
-    from latent_model.shipped import GroundTruth, load_identity_specs
 
-    specs, _ = load_identity_specs(ShippedPaths.at().identities)
-    spec = next(s for s in specs if s.split == "test" and s.rest == "armsDown30")
-    gt = GroundTruth([spec])
-    v = gt.state(spec.id, None, "neutral").astype(np.float64) * 100.0
-    assert toes_ahead(v / 100.0) > 0.05  # facing -Y, its toes ahead of its shins
     turn = np.diag([-1.0, -1.0, 1.0])  # 180 degrees about Z: facing +Y
-    moved = {}
-    for name, user in (("front.obj", v), ("back.obj", v @ turn.T)):
-        trimesh.Trimesh(user, gt.faces, process=False).export(tmp_path / name)
-        assert _run("--mesh", tmp_path / name, "--pose", "elbowBentLf", "-o", tmp_path / f"out_{name}") == 0
-        printed = capsys.readouterr().out
-        assert ("facing +Y" in printed) == (name == "back.obj") and "warning" not in printed, printed
-        moved[name] = meshio.read_file(tmp_path / f"out_{name}")[0] - user
-    np.testing.assert_allclose(moved["back.obj"] @ turn, moved["front.obj"], atol=0.1)
-    assert _run("--mesh", tmp_path / "back.obj", "--pose", "elbowBentLf", "--kind",
+    moved, (front, back) = _front_and_turned(tmp_path, capsys, "armsDown30", turn, "+Y")
+    assert toes_ahead(meshio.read_file(front)[0] / 100.0) > 0.05  # facing -Y, its toes ahead of its shins
+    np.testing.assert_allclose(moved["turned.obj"] @ turn, moved["front.obj"], atol=0.1)
+    assert _run("--mesh", back, "--pose", "elbowBentLf", "--kind",
                 "skinning_to_skinning_plus_blendshape", "-o", tmp_path / "corrective.obj") == 0
     assert "facing +Y" not in capsys.readouterr().out
