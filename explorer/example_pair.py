@@ -92,7 +92,7 @@ def read_example_steps(transfer, neutral: str | Path, posed: str | Path, up: str
     prepared = []
     for k, m in enumerate((a, a1)):
         yield f"encoding the example's {('neutral', 'posed')[k]} mesh {m.name}", 0.1 + 0.45 * k
-        p = transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces, seed=seed)
+        p = transfer.prepare_user_mesh(m, seed)
         p.mu  # noqa: B018 - the encoding, in this step
         prepared.append(p)
     delta = transfer.example_delta(*prepared)

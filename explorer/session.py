@@ -293,7 +293,7 @@ class Session:
             if len(self._prepared) > 64:
                 self._prepared.clear()
             m = self.source_mesh(pair)
-            self._prepared[key] = self.transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces)
+            self._prepared[key] = self.transfer.prepare_user_mesh(m)
         return self._prepared[key]
 
     def prepared(self, target: str, kind: str = "neutral_to_pose", pose: str | None = None):
@@ -365,7 +365,7 @@ class Session:
         key = (example.name, example.stamp)
         if key not in self._example_masks:
             m = example.neutral
-            self._example_masks[key] = self._regions(self.transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces))
+            self._example_masks[key] = self._regions(self.transfer.prepare_user_mesh(m))
         return self._example_masks[key]
 
     @staticmethod

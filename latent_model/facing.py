@@ -34,7 +34,7 @@ TOES_BACK_M = 0.05
 def with_frame(mesh: UserMesh, frame: Frame) -> UserMesh:
     """The same file mesh read through another frame (its model vertices redone; the file's own untouched)."""
     user = mesh.frame.to_user(mesh.vertices)
-    return dataclasses.replace(mesh, vertices=frame.to_model(user), frame=frame)
+    return dataclasses.replace(mesh, vertices=frame.to_model(user), frame=frame, mu=None)  # read otherwise, another latent
 
 
 def facing(mesh: UserMesh, axis: str, up: str | None = None) -> UserMesh:
@@ -62,22 +62,31 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
     unless `up_known`) under which the model finds it within its out-of-distribution threshold for a source of pair
     kind `kind`, or a neutral turned round onto its toes (module docstring). Encodes the mesh once, and once per
     other reading only when it is out of distribution or a neutral's toes point back; a bank without a threshold
-    leaves it as read. `progress(text)` is told before the others are tried."""
+    leaves it as read. `progress(text)` is told before the others are tried. The mesh returned carries its latent
+    (`UserMesh.mu`, seed 0) for `Transfer.prepare`."""
     bank = transfer.bank
     threshold = bank.threshold_for(kind)
     if threshold <= 0:
         return mesh
 
+    encoded: dict[int, UserMesh] = {}  # each reading with its latent, by id of the reading
+
     def distance(m: UserMesh) -> float:
-        return bank.distance_to_training(transfer.encode(m.vertices, m.sdf_faces))
+        if m.mu is None:
+            m = encoded.setdefault(id(m), dataclasses.replace(m, mu=transfer.encode(m.vertices, m.sdf_faces)))
+        return bank.distance_to_training(m.mu)
+
+    def kept(m: UserMesh) -> UserMesh:
+        """The reading chosen, with its latent when it was encoded."""
+        return encoded.get(id(m), m)
 
     read = mesh.frame.facing or horizontal_axes(mesh.frame.up)[0]
     forward = TOES_BACK_M * float(np.ptp(mesh.vertices[:, 2])) / 1.7  # toes this far ahead: a neutral's front
     if distance(mesh) <= threshold:
         if kind != "neutral_to_pose" or toes_ahead(mesh.vertices) > -forward:
-            return mesh
+            return kept(mesh)
         back = facing(mesh, ("-" if read[0] == "+" else "+") + read[1])
-        return back if distance(back) <= threshold and toes_ahead(back.vertices) > 0 else mesh
+        return kept(back) if distance(back) <= threshold and toes_ahead(back.vertices) > 0 else kept(mesh)
     progress(f"{mesh.name} read facing {read.upper()} lies far from the model's characters: trying the other facings")
     within = []
     ups = (mesh.frame.up,) if up_known else (mesh.frame.up, "y" if mesh.frame.up == "z" else "z")
@@ -95,13 +104,13 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
             d = distance(turned)
             if d <= threshold:
                 within.append((toes <= 0, d, len(within), turned))  # toes forward first
-    return min(within)[-1] if within else mesh
+    return kept(min(within)[-1]) if within else kept(mesh)
 
 
 def face_front_pair(transfer, neutral: UserMesh, posed: UserMesh, up_known: bool = False,
                     progress=lambda text: None) -> tuple[UserMesh, UserMesh]:
     """An example pair (A, A1 in A's frame) facing where A faces front (`face_front`); A1 follows A's frame."""
     turned = face_front(transfer, neutral, up_known=up_known, progress=progress)
-    if turned is neutral:
-        return neutral, posed
+    if turned.frame == neutral.frame:
+        return turned, posed
     return turned, with_frame(posed, turned.frame)

@@ -108,6 +108,8 @@ class UserMesh:
     file_faces: np.ndarray
     source_path: Path | None = None
     source_text: str | None = None  # the OBJ text, for a faithful rewrite on export
+    # its latent mean (Z,) as read (SDF sample seed 0), when `facing.face_front` has encoded it: prepare need not again
+    mu: np.ndarray | None = None
 
     @property
     def n_file_vertices(self) -> int:

@@ -77,7 +77,7 @@ def predict_file(transfer, mesh: UserMesh, pose: str, strategy: Strategy = "mean
     if blend > 0 and pose_b is None:
         raise PredictError("--blend needs --pose-b (the pose to blend toward)")
     t0 = time.perf_counter()
-    prepared = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
+    prepared = transfer.prepare_user_mesh(mesh, seed)
     try:
         result = transfer.predict_detail(prepared, pose, strategy, magnitude, kind, pose_b, blend)
     except KeyError as e:  # bank lookups (e.g. identity:<id> not a training identity)
@@ -106,9 +106,9 @@ def transfer_example_file(transfer, neutral: UserMesh, posed: UserMesh, mesh: Us
     except ValueError as e:
         raise PredictError(f"{e} (see lrr transfer --help)") from None
     t0 = time.perf_counter()
-    a, a1 = (transfer.prepare(m.vertices, m.faces, sdf_faces=m.sdf_faces, seed=seed) for m in (neutral, posed))
+    a, a1 = (transfer.prepare_user_mesh(m, seed) for m in (neutral, posed))
     delta = transfer.example_delta(a, a1)
-    target = transfer.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed)
+    target = transfer.prepare_user_mesh(mesh, seed)
     corrective = transfer.example_corrective(a, a1) if transfer.predicts_with(kind) == "correctives" else None
     body = transfer.example_body(a, a1) if kind == "neutral_to_pose" else None
     result = _with_novelty(transfer, transfer.predict_detail(target, None, magnitude=magnitude, kind=kind, delta=delta,

@@ -195,6 +195,12 @@ class Transfer:
         return PreparedMesh(v, f, sdf_faces, self.model.cfg.decoder.knn,
                             lambda vv, ff: self.encode(vv, ff, seed), mu, surface)
 
+    def prepare_user_mesh(self, mesh, seed: int = 0) -> PreparedMesh:
+        """`prepare` of a user's mesh (`meshio.UserMesh`), with the latent it carries when it was encoded with the
+        same seed (`facing.face_front` encodes with seed 0): a mesh is encoded once on load."""
+        return self.prepare(mesh.vertices, mesh.faces, sdf_faces=mesh.sdf_faces, seed=seed,
+                            mu=mesh.mu if seed == 0 else None)
+
     # ------------------------------------------------------------------ conditioning
     def delta(self, mesh: PreparedMesh, pose: str, strategy: Strategy, kind: PairKind = "neutral_to_pose",
               oracle_target_mu: np.ndarray | None = None) -> tuple[np.ndarray, str]:
