@@ -146,6 +146,12 @@ class MotionDecoderConfig:
     # the condition also says whether the delta is a pose's mean over the training characters or one character's
     # (nn/motion_decoder.MotionDecoder.averaged_code): a mean is exact, one character's carries its identity and noise
     averaged_input: bool = True
+    # the arms' motion is composed on the motion of a band of the upper chest, as far as the decoder says per vertex
+    # (nn/motion_decoder.carry_arms): a spine pose carries the arms in any rest; each training pair's vertex subset
+    # also holds `carried_band` vertices of the band, which the composition fits. Tried, not yet judged on clean
+    # surface features (docs/history.md, 2026-12-07 evening, later)
+    carried_arms: bool = False
+    carried_band: int = 64
 
     def __post_init__(self) -> None:
         for k in (*self.kinds, *self.trained_kinds):
@@ -301,6 +307,8 @@ class Preset:
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, other_mix=0.0))
             if "averaged_input" not in stored:  # stored before the count: its condition has no such input
                 model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, averaged_input=False))
+            if "carried_arms" not in stored:  # stored before the chest carried the arms: it has no such output
+                model = dataclasses.replace(model, motion=dataclasses.replace(model.motion, carried_arms=False))
         loss = _from_dict(LossWeights, d["loss"])
         if "consist" not in d["loss"]:  # stored before the consistency term: trained without it
             loss = dataclasses.replace(loss, consist=0.0)

@@ -62,19 +62,19 @@ def _inputs(n: int = 50, latent: int = 16, seed: int = 0) -> dict[str, torch.Ten
             "r": torch.tensor([1.0]), "kind": torch.tensor([0])}
 
 
-@pytest.mark.parametrize("world", [False, True])
-def test_motion_decoder_is_exact_at_zero_continuous_and_reads_its_conditioning(world):
+@pytest.mark.parametrize("options", [{"world": False}, {"world": True}, {"world": True, "carried_arms": True}])
+def test_motion_decoder_is_exact_at_zero_continuous_and_reads_its_conditioning(options):
     """r = 0 returns the source exactly; the output is continuous in r; changing mu_src, the delta's
     direction or where the vertices are on the body changes it (no path ignores them)."""
     from latent_model.nn.motion_decoder import MotionDecoder
 
     torch.manual_seed(0)
-    dec = MotionDecoder(16, 4, hidden=32, cond=32, world=world).eval()
+    dec = MotionDecoder(16, 4, hidden=32, cond=32, **options).eval()
     dec.set_mu_basis(torch.randn(12, 16))  # mu_src is read through principal components of training latents
     with torch.no_grad():
         for prm in dec.parameters():
             prm.add_(torch.randn_like(prm) * 0.3)  # an untrained decoder says nothing: give it a voice
-    x = _inputs()
+    x = _inputs(n=200)  # random coordinates in [0, 1]: ~10 vertices in each chest band (`carry_arms`)
     run = lambda **kw: dec(**{**x, **kw})  # noqa: E731
     with torch.no_grad():
         base = run()
@@ -82,7 +82,7 @@ def test_motion_decoder_is_exact_at_zero_continuous_and_reads_its_conditioning(w
         steps = [run(r=torch.tensor([float(a)])) for a in np.linspace(0.0, 2.0, 41)]
         jumps = torch.stack([(b - a).norm(dim=-1).max() for a, b in zip(steps, steps[1:])])
         assert jumps.max() < 3 * jumps.median() and (steps[-1] - steps[0]).norm(dim=-1).max() > 1e-3
-        other = _inputs(seed=1)
+        other = _inputs(n=200, seed=1)
         for key in ("mu_src", "delta_dir", "coords"):
             assert not torch.allclose(run(**{key: other[key]}), base, atol=1e-6), key
 
@@ -311,10 +311,12 @@ def test_a_motion_in_the_limb_frame_turns_with_the_limb():
     assert np.allclose(axis_angle_to_matrix(torch.tensor(w)).numpy(), Rotation.from_rotvec(w).as_matrix(), atol=1e-6)
 
 
-def test_a_trained_motion_decoder_predicts_through_transfer_and_its_checkpoint(tiny_corpus, tmp_path):
+@pytest.mark.parametrize("carried", [False, True])
+def test_a_trained_motion_decoder_predicts_through_transfer_and_its_checkpoint(tiny_corpus, tmp_path, carried):
     """With the motion decoder enabled, Phase B's motion part trains it on the tiny corpus, Transfer
     predicts neutral_to_pose with it from the mesh's latent and surface, and a saved checkpoint
-    predicts the same. Magnitude 0 is the source exactly; another latent gives another prediction."""
+    predicts the same. Magnitude 0 is the source exactly; another latent gives another prediction. With the arms
+    carried by the chest (`carried_arms`) too."""
     import dataclasses
 
     from latent_model.bank import build_bank
@@ -325,7 +327,8 @@ def test_a_trained_motion_decoder_predicts_through_transfer_and_its_checkpoint(t
     from latent_model.transfer import Transfer
 
     p = preset("tiny")
-    motion = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=32, steps=15, batch=2, vertices=128)
+    motion = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=32, steps=15, batch=2, vertices=128,
+                                 carried_arms=carried)
     p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=motion))
     torch.manual_seed(0)
     model = LatentReRig(p.model).eval()
@@ -341,12 +344,16 @@ def test_a_trained_motion_decoder_predicts_through_transfer_and_its_checkpoint(t
     out = t.predict_detail(mesh, "elbowBentLf")
     assert out.predictor == "motion" and t.predicts_with("skinning_to_skinning_plus_blendshape") != "motion"
     assert {"mu", "surface"} <= mesh.derived()
+    if carried:
+        from latent_model.nn.motion_decoder import CARRIER_MIN, chest_band
+        assert chest_band(mesh.surface.coords).sum() >= CARRIER_MIN  # the composition acts on this body
     assert np.abs(out.vertices - mesh.vertices).max() > 1e-4
     assert np.array_equal(t.predict(mesh, "elbowBentLf", magnitude=0.0), mesh.vertices)
     other = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=mesh.mu + 1.0)
     assert not np.allclose(t.predict(other, "elbowBentLf"), out.vertices, atol=1e-6)
     save_checkpoint(tmp_path / "m.safetensors", model, p, "all", 0)
     again, _, _ = load_checkpoint(tmp_path / "m.safetensors")
+    assert again.motion_decoder.carried_arms == carried
     t2 = Transfer(again, bank, c.config.sdf.k)
     mesh2 = t2.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces, mu=mesh.mu)
     assert np.allclose(t2.predict(mesh2, "elbowBentLf"), out.vertices, atol=1e-6)
@@ -437,6 +444,39 @@ def test_transfer_moves_hands_and_feet_rigidly_unless_the_config_says_not(tiny_m
     edge = max(e for _, _, e in RIGID_PARTS.values())
     in_parts = (mesh.surface.coords[:, 2:6] < edge).any(axis=1)
     assert moved.any() and not (moved & ~in_parts).any()
+
+
+def test_an_arm_is_carried_by_its_chest_band_in_any_rest(stances):
+    """`carry_arms`: an upper-body turn that the arms' own motion leaves out carries both arms with it, each arm's
+    every vertex turned as the chest is, in the T-pose and with the arms down as in bind; the torso keeps its motion
+    exactly; an arm's own motion under a still chest is kept; a still motion stays exactly still; where the decoder
+    says not carried (0) nothing is; the chest band is found between the shoulders in every rest."""
+    from latent_model.nn.motion_decoder import RigidMotion, apply_motion, axis_angle_to_matrix, carry_arms, chest_band
+
+    w0, pivot = torch.tensor([0.5, 0.0, 0.1]), torch.tensor([0.0, 0.0, 0.1])  # a bend forwards about the waist
+    for rest, (v, sf) in stances.items():
+        x, c, n = torch.from_numpy(v)[None].float(), torch.from_numpy(sf.coords)[None], len(v)
+        band = v[chest_band(sf.coords)]
+        assert len(band) > 50 and np.abs(band[:, 0]).max() < 0.2 and band[:, 2].min() > 0.25, rest  # between the shoulders
+        arms = torch.from_numpy((sf.coords[:, 2] < 0.32) | (sf.coords[:, 3] < 0.32))
+        torso = torch.from_numpy((sf.coords[:, 2] >= 0.42) & (sf.coords[:, 3] >= 0.42))
+        chest = torch.from_numpy((sf.coords[:, 2] >= 0.40) & (sf.coords[:, 3] >= 0.40))  # the band's hand limits
+        bend = RigidMotion(torch.where(chest[None, :, None], w0, 0.0), pivot.expand(1, n, 3).clone(),
+                           torch.zeros(1, n, 3))
+        out = apply_motion(x, carry_arms(x, c, bend))
+        want = (x[0, arms] - pivot) @ axis_angle_to_matrix(w0).T + pivot
+        assert (out[0, arms] - want).norm(dim=-1).max() < 1e-4, rest
+        assert (apply_motion(x, bend)[0, arms] - want).norm(dim=-1).mean() > 0.1, rest  # not carried, they lag
+        assert torch.equal(out[0, torso], apply_motion(x, bend)[0, torso]), rest
+        pair = RigidMotion(*(t.expand(2, -1, -1) for t in bend))  # a batch: carried, and said not to be
+        say = torch.stack([torch.ones(n, 1), torch.zeros(n, 1)])
+        both = apply_motion(x.expand(2, -1, -1), carry_arms(x.expand(2, -1, -1), c.expand(2, -1, -1), pair, say))
+        assert torch.allclose(both[0], out[0], atol=1e-6) and torch.equal(both[1], apply_motion(x, bend)[0]), rest
+        raise_arms = RigidMotion(torch.where(arms[None, :, None], torch.tensor([0.0, 0.4, 0.0]), 0.0), x.clone(),
+                                 torch.zeros(1, n, 3))
+        assert torch.allclose(apply_motion(x, carry_arms(x, c, raise_arms)), apply_motion(x, raise_arms), atol=1e-5)
+        still = RigidMotion(torch.zeros(1, n, 3), x.clone(), torch.zeros(1, n, 3))
+        assert torch.equal(apply_motion(x, carry_arms(x, c, still)), x), rest
 
 
 def test_absorbing_the_translation_keeps_r1_and_turns_twice_about_the_joint():

@@ -29,7 +29,7 @@ class LatentReRig(nn.Module):
         # only when enabled: checkpoints without it (the shipped one) keep their exact key set
         self.motion_decoder = MotionDecoder(cfg.latent, cfg.n_pair_kinds, m.hidden, m.cond, m.layers, m.world,
                                             m.mu_dims, m.mu_noise, m.local_inputs, m.delta_dims, m.delta_noise,
-                                            m.limb_direction, m.averaged_input) \
+                                            m.limb_direction, m.averaged_input, m.carried_arms) \
             if m.enabled else None
 
     def phase_a_parameters(self):

@@ -69,7 +69,7 @@ class MotionDecoder(nn.Module):
     def __init__(self, latent: int, n_kinds: int, hidden: int = 128, cond: int = 256, layers: int = 3,
                  world: bool = False, mu_dims: int = 8, mu_noise: float = 1.0, local_inputs: bool = True,
                  delta_dims: int = 0, delta_noise: float = 0.0, limb_direction: bool = False,
-                 averaged_input: bool = False) -> None:
+                 averaged_input: bool = False, carried_arms: bool = False) -> None:
         super().__init__()
         self.dir_gain = math.sqrt(latent)  # unit direction components ~1/sqrt(Z): to unit RMS
         self.kind_emb = nn.Embedding(n_kinds, 16)
@@ -106,10 +106,16 @@ class MotionDecoder(nn.Module):
         nn.init.zeros_(self.film.weight)
         nn.init.zeros_(self.film.bias)
         self.world = world  # also a rotation and translation in world axes (the torso has no limb axis)
-        self.out = nn.Linear(hidden, 15 if world else 9)
+        # carried_arms: one more output, each vertex's logit of how far the chest carries it (`carry_arms`)
+        self.out = nn.Linear(hidden, (15 if world else 9) + int(carried_arms))
         nn.init.normal_(self.out.weight, std=1e-3)
         nn.init.zeros_(self.out.bias)
         self.n_layers = layers
+        # carried_arms: the arms' motion is composed on the chest band's (`carry_arms`), as far as the decoder says
+        # per vertex: a spine pose's turn of the arms is then the chest's in any rest, where in the arm's limb frame
+        # it is another rotation in each rest; the arms' own and the neck's poses, which move the band a little,
+        # need not carry the arms with it (composed without a say, they leaked 2-4 mm onto the other arm)
+        self.carried_arms = carried_arms
         # mean length of the training deltas: r is read in these units (set by train/motion.py)
         self.register_buffer("delta_scale", torch.ones(()))
 
@@ -219,13 +225,20 @@ class MotionDecoder(nn.Module):
         if self.world:
             w, u = w + m[..., 9:12], u + m[..., 12:15] * 0.1
         pivot = medial + o
+        carried = torch.sigmoid(m[..., -1:]) if self.carried_arms else None  # (B, N, 1)
         if smooth is not None:
-            w, pivot, u = smooth(torch.cat([w, pivot, u], dim=-1)).split(3, dim=-1)
+            if carried is None:
+                w, pivot, u = smooth(torch.cat([w, pivot, u], dim=-1)).split(3, dim=-1)
+            else:
+                w, pivot, u, carried = smooth(torch.cat([w, pivot, u, carried], dim=-1)).split([3, 3, 3, 1], dim=-1)
         if repivot > 0:
             ref = (r if r_ref is None else r_ref.reshape(-1, 1, 1)).clamp(min=1e-6)
             pivot, u_ref = absorb_translation(w * ref, pivot, u * ref, repivot)
             u = u_ref / ref
-        return RigidMotion(w * r, pivot, u * r)
+        m = RigidMotion(w * r, pivot, u * r)
+        # in training the bands' motions are not moved by the arms' errors (they have their own targets, and an
+        # SVD's gradient is unstable where the band's spread is alike along two axes)
+        return m if carried is None else carry_arms(v_src, coords, m, carried, detach=self.training)
 
 
 class RigidMotion(NamedTuple):
@@ -235,6 +248,65 @@ class RigidMotion(NamedTuple):
     w: torch.Tensor
     pivot: torch.Tensor
     u: torch.Tensor
+
+
+# Arms carried by the chest (`carry_arms`): per arm (column of surface.coords: the hand's geodesic distance over the
+# height; the arm is wholly carried up to this distance, not at all from this one). On training characters in bind an
+# elbow bend moves nothing past 0.35 and the shoulder joint lies at ~0.35-0.40
+ARM_CARRIED = {"arm_left": (2, 0.32, 0.42), "arm_right": (3, 0.32, 0.42)}
+# The chest band that carries them: geodesic distance over the height from the head top in [0.22, 0.32), from the
+# torso centre in [0.15, 0.30), from each hand at least 0.40: the upper chest and back below the neck, distances the
+# arms' rest barely changes (its vertices shared by bind and the T-pose, armsDown, armsHigh: 66-97 % on 8 persons;
+# narrower bands lost more). Of the bands tried on 23 training characters in their 7 rests, it carries the arms
+# 40 / 43 mm from the truth in spineBendFw / spineTwistLf (156 / 277 not carried) while the arms' and the neck's own
+# poses barely move it (clavicle 6.5, shoulder raise 3.5, neck turn 0.8 mm mean; the arms it carries lie 2.5 mm off
+# in the neck turn). The spine bends over several joints: bands nearer the neck carry the arms better in the spine
+# poses and worse in the neck's (19 / 26 and 13 mm)
+CHEST_BAND = {"head": (1, 0.22, 0.32), "centre": (0, 0.15, 0.30), "hand_left": (2, 0.40, 9.0),
+              "hand_right": (3, 0.40, 9.0)}
+CARRIER_MIN = 3  # band vertices the carrier needs (fewer, as on a mesh without a chest: the arms are not carried)
+
+
+def chest_band(coords):
+    """Mask (..., N) of the chest band (`CHEST_BAND`) among vertices with geodesic coordinates coords (..., N, 6),
+    numpy or torch."""
+    inside = [(coords[..., col] >= lo) & (coords[..., col] < hi) for col, lo, hi in CHEST_BAND.values()]
+    out = inside[0]
+    for m in inside[1:]:
+        out = out & m
+    return out
+
+
+def carry_arms(v_src: torch.Tensor, coords: torch.Tensor, m: RigidMotion, carried: torch.Tensor | float = 1.0,
+               detach: bool = False) -> RigidMotion:
+    """The motion `m` with the arms' composed on the chest's: x -> A(L(x)), L an arm's own motion, A the chest band's
+    best rigid motion (Kabsch of its vertices moved by `m`, `CHEST_BAND`), blended in from the shoulder
+    (`ARM_CARRIED`) and weighed by `carried` (B, N, 1) in [0, 1] (the decoder's say). A spine bend turns the arms
+    with the chest, but in an arm's limb frame that turn is another rotation in each rest, and the decoder, which
+    reads the frame, learns it for the rests it saw; composed, most of it is the chest's, the same in any rest. Each vertex keeps its pivot: the rotation becomes R_A R_L and the
+    translation u_L + (R_A - I)(pivot + u_L - c) + (c' - c) (c, c': the band's centroid before and after). A still
+    band (r = 0) composes exactly nothing. v_src, coords (B, N, 3 / 6), any vertex subset: with fewer than
+    CARRIER_MIN band vertices in it, the motion is left as it is. `detach`: A is not differentiated."""
+    moved = apply_motion(v_src, m)
+    if detach:
+        moved = moved.detach()
+    band = chest_band(coords).to(v_src.dtype)[..., None]  # (B, N, 1)
+    count = band.sum(1, keepdim=True)  # (B, 1, 1)
+    bw = band / count.clamp(min=1.0)
+    cx, cy = (bw * v_src).sum(1, keepdim=True), (bw * moved).sum(1, keepdim=True)
+    cov = torch.einsum("bni,bnj->bij", bw * (v_src - cx), moved - cy)
+    on = ((count[:, 0, 0] >= CARRIER_MIN) & ((band * (moved - v_src)).abs().amax(dim=(1, 2)) > 0)).to(v_src.dtype)
+    rot = axis_angle_to_matrix(matrix_to_axis_angle(best_rotation(cov)) * on[:, None])[:, None]  # exactly I if off
+    shift = (cy - cx) * on[:, None, None]
+    s = 0.0
+    for col, full, end in ARM_CARRIED.values():
+        t = ((end - coords[..., col]) / (end - full)).clamp(0.0, 1.0)
+        s = s + (t * t * (3.0 - 2.0 * t))[..., None]  # (B, N, 1): 1 along an arm, 0 from the shoulder's root on
+    s = s.clamp(max=1.0) * carried
+    turn = (rot - torch.eye(3, dtype=v_src.dtype, device=v_src.device)).expand(*m.w.shape, 3)
+    w_c = matrix_to_axis_angle(rot @ axis_angle_to_matrix(m.w))
+    u_c = m.u + torch.einsum("bnij,bnj->bni", turn, m.pivot + m.u - cx) + shift
+    return RigidMotion(m.w + s * (w_c - m.w), m.pivot, m.u + s * (u_c - m.u))
 
 
 def absorb_translation(w: torch.Tensor, pivot: torch.Tensor, u: torch.Tensor, damping: float
@@ -262,13 +334,12 @@ def best_rotation(cov: torch.Tensor) -> torch.Tensor:
 
 
 def matrix_to_axis_angle(rot: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotations -> (..., 3) rotation vectors (angle < 180 degrees; exact 0 at the identity)."""
-    cos = ((rot.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0).clamp(-1.0, 1.0)
-    theta = torch.acos(cos)
+    """(..., 3, 3) rotations -> (..., 3) rotation vectors (angle < 180 degrees; exact 0 at the identity). The angle
+    is atan2(2 sin, 2 cos), not acos: its gradient stays finite at the identity (training composes rotations)."""
     vee = torch.stack([rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0], rot[..., 1, 0] - rot[..., 0, 1]], -1)
-    sin = torch.sin(theta)
-    factor = torch.where(sin > 1e-4, theta / (2.0 * sin.clamp(min=1e-4)), 0.5 + theta * theta / 12.0)
-    return vee * factor[..., None]
+    two_sin = torch.sqrt((vee * vee).sum(-1) + 1e-20)
+    theta = torch.atan2(two_sin, rot.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
+    return vee * (theta / two_sin)[..., None]  # theta / (2 sin theta) -> 1/2 at the identity
 
 
 def local_motion_fit(v_src: torch.Tensor, v_moved: torch.Tensor, average, damping: float) -> RigidMotion:

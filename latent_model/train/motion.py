@@ -20,7 +20,7 @@ from latent_model.config import MotionDecoderConfig
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
 from latent_model.encoding import encode_rows
-from latent_model.nn.motion_decoder import MotionDecoder, apply_motion
+from latent_model.nn.motion_decoder import MotionDecoder, apply_motion, chest_band
 from latent_model.surface import SurfaceFeatures
 from latent_model.surface_cache import state_features
 from latent_model.train.combo_augment import ExtraPoses, extra_combinations
@@ -191,7 +191,7 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
                 tgt = extra.target(i, p)
             else:
                 tgt = corpus.vertices(corpus.state(i, p, FINAL))
-            idx = _vertex_subset(rng, v, tgt, cfg, reach)
+            idx = _vertex_subset(rng, v, tgt, cfg, reach, cache.get(i)[2].coords)
             u = rng.random()
             if u < cfg.mean_prob:
                 delta, averaged = table.mean[p], table.mean_count[p]
@@ -224,7 +224,7 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
         if reach is not None:
             # relative position of neighbours: a rigid part stays rigid (per-vertex errors alone let it crumple)
             half, n = cfg.vertices // 2, cfg.vertices
-            rel = (pred[:, :half] - pred[:, n:]) - (tgt[:, :half] - tgt[:, n:])
+            rel = (pred[:, :half] - pred[:, n:n + half]) - (tgt[:, :half] - tgt[:, n:n + half])
             loss = loss + cfg.edge * rel.norm(dim=-1).mean() * 1000
         opt.zero_grad()
         loss.backward()
@@ -239,16 +239,21 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
     return history
 
 
-def _vertex_subset(rng: np.random.Generator, v: np.ndarray, tgt: np.ndarray, cfg: MotionDecoderConfig, reach
-                   ) -> np.ndarray:
+def _vertex_subset(rng: np.random.Generator, v: np.ndarray, tgt: np.ndarray, cfg: MotionDecoderConfig, reach,
+                   coords: np.ndarray) -> np.ndarray:
     """The vertices a pair (source v, target tgt (V, 3)) trains on: `cfg.vertices`, half where it moves the surface
-    (> 2 mm) and half anywhere, then (with the edge term's `reach`) a neighbour of each moving one, its partner."""
+    (> 2 mm) and half anywhere, then (with the edge term's `reach`) a neighbour of each moving one, its partner, then
+    (`cfg.carried_arms`) `cfg.carried_band` of the chest band that carries the arms (located by the source's
+    geodesic coordinates `coords` (V, 6))."""
     moving = np.flatnonzero(np.linalg.norm(tgt - v, axis=1) > 0.002)
     half = cfg.vertices // 2
     idx = np.concatenate([rng.choice(moving, size=half) if len(moving) else rng.integers(len(v), size=half),
                           rng.integers(len(v), size=cfg.vertices - half)])
     if reach is not None:
         idx = np.concatenate([idx, sample_neighbours(rng, reach, idx[:half])])
+    band = np.flatnonzero(chest_band(coords)) if cfg.carried_arms else ()
+    if len(band):
+        idx = np.concatenate([idx, rng.choice(band, size=cfg.carried_band)])
     return idx
 
 
@@ -259,7 +264,7 @@ def _posed_pair(rng: np.random.Generator, posed: "PosedSources", scale: float, c
     k = int(rng.integers(len(posed.pairs)))
     i, s, _, key = posed.pairs[k]
     (v, n, sf), tgt = posed.sources[s], posed.target(k)
-    idx = _vertex_subset(rng, v, tgt, cfg, reach)
+    idx = _vertex_subset(rng, v, tgt, cfg, reach, sf.coords)
     u = rng.random()
     if u < cfg.mean_prob:
         delta, averaged = posed.mean(key)
