@@ -34,7 +34,8 @@ TOES_BACK_M = 0.05
 def with_frame(mesh: UserMesh, frame: Frame) -> UserMesh:
     """The same file mesh read through another frame (its model vertices redone; the file's own untouched)."""
     user = mesh.frame.to_user(mesh.vertices)
-    return dataclasses.replace(mesh, vertices=frame.to_model(user), frame=frame, mu=None)  # read otherwise, another latent
+    # read otherwise, it has another latent
+    return dataclasses.replace(mesh, vertices=frame.to_model(user), frame=frame, mu=None)
 
 
 def facing(mesh: UserMesh, axis: str, up: str | None = None) -> UserMesh:

@@ -457,7 +457,8 @@ def test_an_arm_is_carried_by_its_chest_band_in_any_rest(stances):
     for rest, (v, sf) in stances.items():
         x, c, n = torch.from_numpy(v)[None].float(), torch.from_numpy(sf.coords)[None], len(v)
         band = v[chest_band(sf.coords)]
-        assert len(band) > 50 and np.abs(band[:, 0]).max() < 0.2 and band[:, 2].min() > 0.25, rest  # between the shoulders
+        between_shoulders = np.abs(band[:, 0]).max() < 0.2 and band[:, 2].min() > 0.25
+        assert len(band) > 50 and between_shoulders, rest
         arms = torch.from_numpy((sf.coords[:, 2] < 0.32) | (sf.coords[:, 3] < 0.32))
         torso = torch.from_numpy((sf.coords[:, 2] >= 0.42) & (sf.coords[:, 3] >= 0.42))
         chest = torch.from_numpy((sf.coords[:, 2] >= 0.40) & (sf.coords[:, 3] >= 0.40))  # the band's hand limits

@@ -283,9 +283,9 @@ def carry_arms(v_src: torch.Tensor, coords: torch.Tensor, m: RigidMotion, carrie
     best rigid motion (Kabsch of its vertices moved by `m`, `CHEST_BAND`), blended in from the shoulder
     (`ARM_CARRIED`) and weighed by `carried` (B, N, 1) in [0, 1] (the decoder's say). A spine bend turns the arms
     with the chest, but in an arm's limb frame that turn is another rotation in each rest, and the decoder, which
-    reads the frame, learns it for the rests it saw; composed, most of it is the chest's, the same in any rest. Each vertex keeps its pivot: the rotation becomes R_A R_L and the
-    translation u_L + (R_A - I)(pivot + u_L - c) + (c' - c) (c, c': the band's centroid before and after). A still
-    band (r = 0) composes exactly nothing. v_src, coords (B, N, 3 / 6), any vertex subset: with fewer than
+    reads the frame, learns it for the rests it saw; composed, most of it is the chest's, the same in any rest. Each
+    vertex keeps its pivot: the rotation becomes R_A R_L and the translation u_L + (R_A - I)(pivot + u_L - c) +
+    (c' - c) (c, c': the band's centroid before and after). A still band (r = 0) composes exactly nothing. v_src, coords (B, N, 3 / 6), any vertex subset: with fewer than
     CARRIER_MIN band vertices in it, the motion is left as it is. `detach`: A is not differentiated."""
     moved = apply_motion(v_src, m)
     if detach:
