@@ -201,10 +201,10 @@ def test_compute_derives_the_pair_once(monkeypatch):
         def judged_novelty(self, out, mesh, kind):
             return None  # the bank has no threshold
 
-        def prepare(self, v, f, sdf_faces=None):
+        def prepare_user_mesh(self, m, seed=0):
             from types import SimpleNamespace
 
-            return SimpleNamespace(vertices=np.asarray(v, np.float32), faces=f)
+            return SimpleNamespace(vertices=np.asarray(m.vertices, np.float32), faces=m.faces)
 
         def predict_detail(self, m, *a):
             return Out(m.vertices + 0.01)
