@@ -256,8 +256,8 @@ class RigidMotion(NamedTuple):
 ARM_CARRIED = {"arm_left": (2, 0.32, 0.42), "arm_right": (3, 0.32, 0.42)}
 # The chest band that carries them: geodesic distance over the height from the head top in [0.22, 0.32), from the
 # torso centre in [0.15, 0.30), from each hand at least 0.40: the upper chest and back below the neck, distances the
-# arms' rest barely changes (its vertices shared by bind and the T-pose, armsDown, armsHigh: 66-97 % on 8 persons;
-# narrower bands lost more). Of the bands tried on 23 training characters in their 7 rests, it carries the arms
+# arms' rest barely changes (of the vertices in it in bind or in another rest, in both: T-pose 45-90 %, armsDown
+# 74-94 %, armsHigh 70-92 %, 100-486 vertices, on 8 persons; bands located by the hands' distances: T-pose 15-66 %). Of the bands tried on 23 training characters in their 7 rests, it carries the arms
 # 40 / 43 mm from the truth in spineBendFw / spineTwistLf (156 / 277 not carried) while the arms' and the neck's own
 # poses barely move it (clavicle 6.5, shoulder raise 3.5, neck turn 0.8 mm mean; the arms it carries lie 2.5 mm off
 # in the neck turn). The spine bends over several joints: bands nearer the neck carry the arms better in the spine
