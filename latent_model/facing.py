@@ -70,24 +70,21 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
     if threshold <= 0:
         return mesh
 
-    encoded: dict[int, UserMesh] = {}  # each reading with its latent, by id of the reading
+    def encoded(m: UserMesh) -> UserMesh:
+        """The reading with its latent (encoded now unless it carries one)."""
+        return m if m.mu is not None else dataclasses.replace(m, mu=transfer.encode(m.vertices, m.sdf_faces))
 
     def distance(m: UserMesh) -> float:
-        if m.mu is None:
-            m = encoded.setdefault(id(m), dataclasses.replace(m, mu=transfer.encode(m.vertices, m.sdf_faces)))
         return bank.distance_to_training(m.mu)
-
-    def kept(m: UserMesh) -> UserMesh:
-        """The reading chosen, with its latent when it was encoded."""
-        return encoded.get(id(m), m)
 
     read = mesh.frame.facing or horizontal_axes(mesh.frame.up)[0]
     forward = TOES_BACK_M * float(np.ptp(mesh.vertices[:, 2])) / 1.7  # toes this far ahead: a neutral's front
+    mesh = encoded(mesh)
     if distance(mesh) <= threshold:
         if kind != "neutral_to_pose" or toes_ahead(mesh.vertices) > -forward:
-            return kept(mesh)
-        back = facing(mesh, ("-" if read[0] == "+" else "+") + read[1])
-        return kept(back) if distance(back) <= threshold and toes_ahead(back.vertices) > 0 else kept(mesh)
+            return mesh
+        back = encoded(facing(mesh, ("-" if read[0] == "+" else "+") + read[1]))
+        return back if distance(back) <= threshold and toes_ahead(back.vertices) > 0 else mesh
     progress(f"{mesh.name} read facing {read.upper()} lies far from the model's characters: trying the other facings")
     within = []
     ups = (mesh.frame.up,) if up_known else (mesh.frame.up, "y" if mesh.frame.up == "z" else "z")
@@ -102,10 +99,11 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
             toes = toes_ahead(turned.vertices)
             if kind == "neutral_to_pose" and toes < forward:
                 continue  # a neutral stands on its feet: a reading whose toes do not point ahead is not its front
+            turned = encoded(turned)
             d = distance(turned)
             if d <= threshold:
                 within.append((toes <= 0, d, len(within), turned))  # toes forward first
-    return kept(min(within)[-1]) if within else kept(mesh)
+    return min(within)[-1] if within else mesh
 
 
 def face_front_pair(transfer, neutral: UserMesh, posed: UserMesh, up_known: bool = False,
