@@ -157,16 +157,39 @@ def test_a_character_facing_another_axis_is_found_by_the_model(tmp_path, capsys)
     assert "is out of distribution" in printed and "facing +X" not in printed and "trying" not in printed
 
 
-def test_a_neutral_turned_round_with_its_arms_down_is_read_on_its_toes(tmp_path, capsys):
+def test_a_character_turned_round_with_its_arms_down_is_read_on_its_toes(tmp_path, capsys):
     """Turned by 180 degrees, a character with its arms at its sides still lies within the out-of-distribution
     threshold, so only its feet say it faces the other way: as a neutral it is read facing +Y and gets the unturned
-    file's motion; as a corrective's source (a posed mesh's lowest points can lie behind) it is left as read."""
+    file's motion, and so it is as a corrective's source (a posed source turned round lies within the threshold
+    too)."""
     from latent_model.facing import toes_ahead
 
     turn = np.diag([-1.0, -1.0, 1.0])  # 180 degrees about Z: facing +Y
     moved, (front, back) = _front_and_turned(tmp_path, capsys, "armsDown30", turn, "+Y")
-    assert toes_ahead(meshio.read_file(front)[0] / 100.0) > 0.05  # facing -Y, its toes ahead of its shins
+    assert toes_ahead(meshio.read_file(front)[0] / 100.0) > 0.05  # facing -Y, its toes ahead of its ankles
     np.testing.assert_allclose(moved["turned.obj"] @ turn, moved["front.obj"], atol=0.1)
-    assert _run("--mesh", back, "--pose", "elbowBentLf", "--kind",
-                "skinning_to_skinning_plus_blendshape", "-o", tmp_path / "corrective.obj") == 0
-    assert "facing +Y" not in capsys.readouterr().out
+    corrective = {}
+    for name, path in (("front", front), ("back", back)):
+        out = tmp_path / f"corrective_{name}.obj"
+        assert _run("--mesh", path, "--pose", "elbowBentLf", "--kind", "skinning_to_skinning_plus_blendshape",
+                    "-o", out) == 0
+        assert ("facing +Y" in capsys.readouterr().out) == (name == "back")
+        corrective[name] = meshio.read_file(out)[0] - meshio.read_file(path)[0]
+    assert np.abs(corrective["front"]).max() > 0.2  # the elbow's corrective moves the surface (cm)
+    np.testing.assert_allclose(corrective["back"] @ turn, corrective["front"], atol=0.05)
+
+
+def test_toes_ahead_reads_the_feet_on_the_ground():
+    """A posed mesh faces where the feet it stands on point: a leg lifted and bent at the knee hangs its foot
+    behind the shins (the shins' mean against the lowest points read test character id008 with hipFlexLf +
+    kneeBentLf as facing backwards, -0.10 m)."""
+    from latent_model.facing import toes_ahead
+    from latent_model.shipped import GroundTruth, load_identity_specs
+
+    specs, _ = load_identity_specs(ShippedPaths.at().identities)
+    gt = GroundTruth([next(s for s in specs if s.id == "id008")])
+    for pose in ("hipFlexLf+kneeBentLf", "kneeBentRt", None):
+        v = gt.state("id008", pose, "skinning" if pose else "neutral").astype(np.float64)
+        assert toes_ahead(v) > 0.08, pose
+        assert toes_ahead(v * [-1.0, -1.0, 1.0]) < -0.08, pose  # turned round about Z
+        assert abs(toes_ahead(v * 100.0) / 100.0 - toes_ahead(v)) < 1e-6  # in the mesh's units
