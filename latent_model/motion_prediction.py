@@ -33,6 +33,12 @@ class MotionPredictor:
         self.model = model  # read at each call: a test or bench may swap its config
         self.device = device
 
+    @property
+    def _decoder_tag(self) -> str:
+        """The cache key of what this decoder's weights derive from a mesh (its first layer, its fitted motions): a
+        mesh prepared once and read by two models gets each its own."""
+        return f"{self.device}|decoder {id(self.model.motion_decoder)}"
+
     def condition(self, d: np.ndarray, kind: PairKind, averaged: float = 1) -> tuple:
         """The condition of a raw delta (Z,) of pair kind `kind` averaging `averaged` characters' deltas."""
         return (*delta_condition(d, 1.0, self.model.cfg.motion.reads_as(kind), self.device), averaged)
@@ -76,7 +82,7 @@ class MotionPredictor:
         """The motion the surface makes under the decoder's prediction at the delta's own length (`local_motion_fit`
         over balls of the config's `refit_radius`), kept per delta: the magnitude and blend sliders only rescale it."""
         cfg, dev = self.model.cfg.motion, self.device
-        fits = mesh.cache("motion_fits", dev, dict)
+        fits = mesh.cache("motion_fits", self._decoder_tag, dict)
         key = (direction.cpu().numpy().tobytes(), float(r), int(k), averaged, cfg.refit_radius, cfg.rigid_parts,
                cfg.repivot, cfg.rigid_prior, cfg.rigid_anchor)
         if key not in fits:
@@ -114,7 +120,7 @@ class MotionPredictor:
         smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
                                                                           self.model.cfg.motion.smooth))
         # the first layer reads the mesh alone: once per mesh, not at every pose, strategy and slider move
-        h0 = mesh.cache("motion_h0", dev, lambda: dec.vertex_input(x["coords"], x["frames"], x["normals"],
+        h0 = mesh.cache("motion_h0", self._decoder_tag, lambda: dec.vertex_input(x["coords"], x["frames"], x["normals"],
                                                                    x["medial"] - x["v_src"]))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
         return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r * magnitude / dec.delta_scale, kind=k,

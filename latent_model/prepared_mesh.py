@@ -56,12 +56,13 @@ class PreparedMesh:
         """Which of mu, normals, knn, surface have been computed (or given)."""
         return {k for k in ("mu", "normals", "knn", "surface") if k in self.__dict__}
 
-    def cached(self, name: str, device: torch.device) -> bool:
+    def cached(self, name: str, device: torch.device | str) -> bool:
         """Whether `cache(name, device, ...)` is already made."""
         return (name, str(device)) in self._caches
 
-    def cache(self, name: str, device: torch.device, make: Callable[[], object]):
-        """A per-device cache entry (`make()` on first use)."""
+    def cache(self, name: str, device: torch.device | str, make: Callable[[], object]):
+        """A per-device cache entry (`make()` on first use); `device` may name an owner too (a model's weights, a
+        bank) where the entry depends on it."""
         key = (name, str(device))
         if key not in self._caches:
             self._caches[key] = make()

@@ -710,3 +710,29 @@ def test_surface_features_of_a_corpus_state_are_kept_and_read_back(tiny_corpus, 
 
     assert again.extremities == {} and joined_hands(again) == {}
     assert joined_hands(fresh) == {} and fresh.extremities.keys() >= {"head", "hand_left"}
+
+
+def test_a_mesh_read_by_two_models_gets_each_models_motion(tiny_motion, tiny_corpus):
+    """A prepared mesh keeps what a decoder derives from it (its first layer, its fitted motions) per decoder: a
+    second model reading the same mesh predicts what it predicts on a freshly prepared one, not the first's."""
+    import copy
+
+    import torch
+
+    from latent_model.transfer import Transfer
+
+    t, _ = tiny_motion
+    c = tiny_corpus
+    other = copy.deepcopy(t.model)
+    with torch.no_grad():
+        for q in other.motion_decoder.parameters():
+            q.mul_(1.2)
+    t2 = Transfer(other, t.bank, c.config.sdf.k)
+    s = c.state(c.split_indices("test")[0], None, "neutral")
+    shared = t.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces)
+    for m in (1.0, 0.5):  # the decoder's own motion, and the fitted one a magnitude rescales
+        first = t.predict(shared, "elbowBentLf", magnitude=m)
+        fresh = t2.predict(t2.prepare(c.vertices(s), c.faces, sdf_faces=c.body_faces), "elbowBentLf", magnitude=m)
+        assert not np.allclose(first, fresh, atol=1e-5)  # the two models differ
+        np.testing.assert_allclose(t2.predict(shared, "elbowBentLf", magnitude=m), fresh, atol=1e-6)
+        np.testing.assert_allclose(t.predict(shared, "elbowBentLf", magnitude=m), first, atol=1e-6)
