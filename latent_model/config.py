@@ -148,8 +148,8 @@ class MotionDecoderConfig:
     averaged_input: bool = True
     # the arms' motion is composed on the motion of a band of the upper chest, as far as the decoder says per vertex
     # (nn/motion_decoder.carry_arms): a spine pose carries the arms in any rest; each training pair's vertex subset
-    # also holds `carried_band` vertices of the band, which the composition fits. Tried, not yet judged on clean
-    # surface features (docs/history.md, 2026-12-07 evening, later)
+    # also holds `carried_band` vertices of the band, which the composition fits. On clean features it lands within
+    # a retrain's spread of the shipped decoder (T-pose spine bend +0.10, other poses -0.02-0.04; docs/history.md)
     carried_arms: bool = False
     carried_band: int = 64
 
