@@ -28,7 +28,7 @@ import numpy as np
 from latent_model.meshio import Frame, UserMesh, detect_frame, horizontal_axes
 from latent_model.types import PairKind
 
-# at 1.7 m tall: a neutral whose toes point this far behind its shins faces the other way (corpus: +10-22 cm ahead)
+# at 1.7 m tall: a mesh whose toes point this far behind its ankles faces the other way (corpus neutrals: +9-15 cm)
 TOES_BACK_M = 0.05
 FOOT_DOWN = 0.01  # a foot whose lowest point stands this far (of the height) off the ground is lifted
 
@@ -77,7 +77,7 @@ def face_front(transfer, mesh: UserMesh, kind: PairKind = "neutral_to_pose", up_
     """`mesh`, or the mesh read as facing the horizontal axis of its file (and standing along the other up axis,
     unless `up_known`) under which the model finds it within its out-of-distribution threshold for a source of pair
     kind `kind`, or a mesh turned round onto its toes (module docstring). Encodes the mesh once, and once per
-    other reading only when it is out of distribution or a neutral's toes point back; a bank without a threshold
+    other reading only when it is out of distribution or its toes point back; a bank without a threshold
     leaves it as read. `progress(text)` is told before the others are tried. The mesh returned carries its latent
     (`UserMesh.mu`, seed 0) for `Transfer.prepare`."""
     bank = transfer.bank

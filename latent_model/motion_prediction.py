@@ -120,8 +120,8 @@ class MotionPredictor:
         smooth = mesh.cache("motion_smooth", dev, lambda: surface_smoother(mesh.faces, len(mesh.vertices),
                                                                           self.model.cfg.motion.smooth))
         # the first layer reads the mesh alone: once per mesh, not at every pose, strategy and slider move
-        h0 = mesh.cache("motion_h0", self._decoder_tag, lambda: dec.vertex_input(x["coords"], x["frames"], x["normals"],
-                                                                   x["medial"] - x["v_src"]))
+        h0 = mesh.cache("motion_h0", self._decoder_tag,
+                        lambda: dec.vertex_input(x["coords"], x["frames"], x["normals"], x["medial"] - x["v_src"]))
         mu = torch.from_numpy(mesh.mu)[None].to(dev)
         return dec.rigid_motion(**x, mu_src=mu, delta_dir=direction, r=r * magnitude / dec.delta_scale, kind=k,
                                 smooth=smooth, repivot=self.model.cfg.motion.repivot, r_ref=r / dec.delta_scale,
