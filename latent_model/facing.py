@@ -10,7 +10,7 @@ nearest, if several, of those below); a mesh within it is never turned, and one 
 its reading (and its warning). The up axis is read from the bounding box, and the arms of a character facing
 sideways in a Z-up file can span more than its height: unless the user named the up axis, the other one is tried.
 A T-pose read backwards can lie within the threshold too (a test character: facing -X nearer than +X), so among
-the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 10-22 cm at
+the readings within it those whose toes reach forward (`toes_ahead`: every corpus neutral's do, by 9-15 cm at
 1.7 m) come first. And a character with its arms at its sides turned round lies within the threshold as read
 (two validation characters: 6.5 and 5.8), and so does a posed source turned round (validation characters with a
 bent knee, a bent spine, a raised arm: 4-32 turned round, against the posed threshold of 18.7; some nearer than as

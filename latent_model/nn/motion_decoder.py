@@ -257,7 +257,8 @@ ARM_CARRIED = {"arm_left": (2, 0.32, 0.42), "arm_right": (3, 0.32, 0.42)}
 # The chest band that carries them: geodesic distance over the height from the head top in [0.22, 0.32), from the
 # torso centre in [0.15, 0.30), from each hand at least 0.40: the upper chest and back below the neck, distances the
 # arms' rest barely changes (of the vertices in it in bind or in another rest, in both: T-pose 45-90 %, armsDown
-# 74-94 %, armsHigh 70-92 %, 100-486 vertices, on 8 persons; bands located by the hands' distances: T-pose 15-66 %). Of the bands tried on 23 training characters in their 7 rests, it carries the arms
+# 74-94 %, armsHigh 70-92 %, 100-486 vertices, on 8 persons; bands located by the hands' distances: T-pose
+# 15-66 %). Of the bands tried on 23 training characters in their 7 rests, it carries the arms
 # 40 / 43 mm from the truth in spineBendFw / spineTwistLf (156 / 277 not carried) while the arms' and the neck's own
 # poses barely move it (clavicle 6.5, shoulder raise 3.5, neck turn 0.8 mm mean; the arms it carries lie 2.5 mm off
 # in the neck turn). The spine bends over several joints: bands nearer the neck carry the arms better in the spine
@@ -285,7 +286,8 @@ def carry_arms(v_src: torch.Tensor, coords: torch.Tensor, m: RigidMotion, carrie
     with the chest, but in an arm's limb frame that turn is another rotation in each rest, and the decoder, which
     reads the frame, learns it for the rests it saw; composed, most of it is the chest's, the same in any rest. Each
     vertex keeps its pivot: the rotation becomes R_A R_L and the translation u_L + (R_A - I)(pivot + u_L - c) +
-    (c' - c) (c, c': the band's centroid before and after). A still band (r = 0) composes exactly nothing. v_src, coords (B, N, 3 / 6), any vertex subset: with fewer than
+    (c' - c) (c, c': the band's centroid before and after). A still band (r = 0) composes exactly nothing.
+    v_src, coords (B, N, 3 / 6), any vertex subset: with fewer than
     CARRIER_MIN band vertices in it, the motion is left as it is. `detach`: A is not differentiated."""
     moved = apply_motion(v_src, m)
     if detach:
