@@ -141,6 +141,10 @@ class MotionDecoderConfig:
     # weight of the world-axis outputs' size (mm: a turn at a 10 cm lever, a shift) in the loss: a limb's turn
     # learnt in world axes is wrong in any rest where the limb points elsewhere; the limb frame's turns with it
     world_penalty: float = 0.0
+    # weight of the still vertices' displacement (mm; their true motion < 1 mm) in the loss, on top of their share of
+    # the error: a leak is a small part of the mean error, so a decoder that blurs neighbouring deltas (a right hip
+    # flex read partly as a right arm's pose) moves the still limb a few cm and barely pays for it
+    static: float = 0.0
     delta_dims: int = 0  # the delta's direction is read through this many whitened principal components (0: in full)
     delta_noise: float = 0.0  # std of the noise on them (or on the unit-RMS direction) in training
     # the condition also says whether the delta is a pose's mean over the training characters or one character's

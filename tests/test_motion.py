@@ -137,34 +137,57 @@ def test_the_limb_direction_input_reads_where_the_limb_points():
         assert torch.equal(dec(**{**x, "r": torch.tensor([0.0])}), x["v_src"])
 
 
-def test_the_world_penalty_moves_the_motion_into_the_limb_frame(tiny_corpus, tmp_path):
-    """`world_penalty` > 0 makes the world-axis outputs smaller than training without it (same seeds)."""
+def _tiny_motion_trained(tiny_corpus, run_dir, **motion):
+    """A tiny model whose motion decoder trained 60 steps with the `motion` config overrides (same seeds each call),
+    and an elbow pose's pair of the first training character as a batch: (decoder, batch, target (1, V, 3))."""
     import dataclasses
 
     from latent_model.config import preset
     from latent_model.nn.model import LatentReRig
     from latent_model.train.motion import CharacterCache, DeltaTable, _batch_tensors, pair_inputs, train_motion_phase
+    from latent_model.types import FINAL
 
+    p = preset("tiny")
+    cfg = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=60, batch=2, vertices=128,
+                              lr=3e-3, **motion)
+    p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=cfg))
+    torch.manual_seed(0)
+    model = LatentReRig(p.model).eval()
+    train_motion_phase(model, p, tiny_corpus, run_dir, torch.device("cpu"), progress=False)
+    train = tiny_corpus.split_indices("train")
+    pose = next(q for q in tiny_corpus.poses if q.startswith("elbow"))
+    table = DeltaTable(model, tiny_corpus, train[:1], train[:1], (pose,), torch.device("cpu"))
+    b = _batch_tensors([pair_inputs(CharacterCache(tiny_corpus, run_dir / "surface"), table, train[0],
+                                    pose, table.delta[(train[0], pose)])])
+    tgt = torch.from_numpy(tiny_corpus.vertices(tiny_corpus.state(train[0], pose, FINAL)))[None].float()
+    return model.motion_decoder, b, tgt
+
+
+def test_the_world_penalty_moves_the_motion_into_the_limb_frame(tiny_corpus, tmp_path):
+    """`world_penalty` > 0 makes the world-axis outputs smaller than training without it (same seeds)."""
     sizes = {}
     for weight in (0.0, 2.0):
-        p = preset("tiny")
-        motion = dataclasses.replace(p.model.motion, enabled=True, hidden=16, cond=16, steps=60, batch=2,
-                                     vertices=128, lr=3e-3, world_penalty=weight)
-        p = dataclasses.replace(p, model=dataclasses.replace(p.model, motion=motion))
-        torch.manual_seed(0)
-        model = LatentReRig(p.model).eval()
-        train_motion_phase(model, p, tiny_corpus, tmp_path / "run", torch.device("cpu"), progress=False)
-        train = tiny_corpus.split_indices("train")
-        pose = next(q for q in tiny_corpus.poses if q.startswith("elbow"))
-        table = DeltaTable(model, tiny_corpus, train[:1], train[:1], (pose,), torch.device("cpu"))
-        b = _batch_tensors([pair_inputs(CharacterCache(tiny_corpus, tmp_path / "run" / "surface"), table, train[0],
-                                        pose, table.delta[(train[0], pose)])])
-        dec = model.motion_decoder
+        dec, b, _ = _tiny_motion_trained(tiny_corpus, tmp_path / "run", world_penalty=weight)
         with torch.no_grad():
             c = dec.condition(b["mu_src"], b["delta_dir"], b["kind"])
             out = dec.motion(b["coords"], b["frames"], b["normals"], b["medial"] - b["v_src"], c)
         sizes[weight] = out[..., 9:15].norm(dim=-1).mean().item()
     assert sizes[2.0] < 0.5 * sizes[0.0], sizes
+
+
+def test_the_static_weight_moves_still_vertices_less(tiny_corpus, tmp_path):
+    """`static` > 0 makes the vertices a pose leaves still move less than training without it (same seeds): the
+    term reads the still vertices of each training pair's target."""
+    leaks = {}
+    for weight in (0.0, 5.0):
+        dec, b, tgt = _tiny_motion_trained(tiny_corpus, tmp_path / "run", static=weight)
+        with torch.no_grad():
+            pred = dec(**{k: b[k] for k in ("v_src", "coords", "frames", "normals", "medial", "mu_src", "delta_dir",
+                                            "r", "kind")})
+        still = (tgt - b["v_src"]).norm(dim=-1) < 1e-3
+        assert still.sum() > 10
+        leaks[weight] = (pred - b["v_src"]).norm(dim=-1)[still].mean().item()
+    assert leaks[5.0] < 0.7 * leaks[0.0], leaks
 
 
 @pytest.mark.parametrize("other_prob", [0.0, 1.0])

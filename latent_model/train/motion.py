@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from latent_model.analysis.metrics import STATIC_MM
 from latent_model.config import MotionDecoderConfig
 from latent_model.corpus.poses import get_pose
 from latent_model.corpus.store import Corpus
@@ -221,6 +222,10 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
             # is right in the rests it was learnt in and wrong in any other. In mm: a turn at a 10 cm lever, a shift
             world_mm = (out[..., 9:12].norm(dim=-1) + out[..., 12:15].norm(dim=-1)) * 0.1 * 1000
             loss = loss + cfg.world_penalty * world_mm.mean()
+        if cfg.static:
+            still = ((tgt - b["v_src"]).norm(dim=-1) < STATIC_MM / 1000).to(pred.dtype)  # (B, N): still as the leak reads it
+            moved = (pred - b["v_src"]).norm(dim=-1)
+            loss = loss + cfg.static * (moved * still).sum() / still.sum().clamp(min=1.0) * 1000
         if reach is not None:
             # relative position of neighbours: a rigid part stays rigid (per-vertex errors alone let it crumple)
             half, n = cfg.vertices // 2, cfg.vertices
