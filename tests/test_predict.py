@@ -182,14 +182,17 @@ def test_a_character_turned_round_with_its_arms_down_is_read_on_its_toes(tmp_pat
 def test_toes_ahead_reads_the_feet_on_the_ground():
     """A posed mesh faces where the feet it stands on point: a leg lifted and bent at the knee hangs its foot
     behind the shins (the shins' mean against the lowest points read test character id008 with hipFlexLf +
-    kneeBentLf as facing backwards, -0.10 m)."""
-    from latent_model.facing import toes_ahead
+    kneeBentLf as facing backwards, -0.10 m), and training character id012's hanging foot rests as low as its
+    standing one, toes down and back: each foot counts as far as its sole rests flat (the largest of the feet read
+    it turned round as facing front, +0.15 m)."""
+    from latent_model.facing import TOES_BACK_M, toes_ahead
     from latent_model.shipped import GroundTruth, load_identity_specs
 
     specs, _ = load_identity_specs(ShippedPaths.at().identities)
-    gt = GroundTruth([next(s for s in specs if s.id == "id008")])
-    for pose in ("hipFlexLf+kneeBentLf", "kneeBentRt", None):
-        v = gt.state("id008", pose, "skinning" if pose else "neutral").astype(np.float64)
-        assert toes_ahead(v) > 0.08, pose
-        assert toes_ahead(v * [-1.0, -1.0, 1.0]) < -0.08, pose  # turned round about Z
-        assert abs(toes_ahead(v * 100.0) / 100.0 - toes_ahead(v)) < 1e-6  # in the mesh's units
+    gt = GroundTruth([s for s in specs if s.id in ("id008", "id012")])
+    for person in ("id008", "id012"):
+        for pose in ("hipFlexLf+kneeBentLf", "kneeBentRt", None):
+            v = gt.state(person, pose, "skinning" if pose else "neutral").astype(np.float64)
+            assert toes_ahead(v) > 0.08, (person, pose)
+            assert toes_ahead(v * [-1.0, -1.0, 1.0]) < -TOES_BACK_M, (person, pose)  # turned round about Z
+            assert abs(toes_ahead(v * 100.0) / 100.0 - toes_ahead(v)) < 1e-6  # in the mesh's units
