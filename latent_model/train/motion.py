@@ -223,7 +223,8 @@ def train_motion_decoder(decoder: MotionDecoder, corpus: Corpus, cache: Characte
             world_mm = (out[..., 9:12].norm(dim=-1) + out[..., 12:15].norm(dim=-1)) * 0.1 * 1000
             loss = loss + cfg.world_penalty * world_mm.mean()
         if cfg.static:
-            still = ((tgt - b["v_src"]).norm(dim=-1) < STATIC_MM / 1000).to(pred.dtype)  # (B, N): still as the leak reads it
+            # (B, N): still as the leak metric reads it
+            still = ((tgt - b["v_src"]).norm(dim=-1) < STATIC_MM / 1000).to(pred.dtype)
             moved = (pred - b["v_src"]).norm(dim=-1)
             loss = loss + cfg.static * (moved * still).sum() / still.sum().clamp(min=1.0) * 1000
         if reach is not None:
