@@ -58,7 +58,8 @@ def toes_ahead(vertices) -> float:
     with the knee bent can hang its foot as low as the standing one's, toes down and back (to -0.15 against the
     standing foot's +0.14), resting on a tenth as many vertices: the largest of the feet read such a mesh turned
     round as facing front. hipFlexLf + kneeBentLf on the 184 shipped characters: +0.05 to +0.17, and turned round
-    none above -0.05 (the largest of the feet: 74)."""
+    none above -0.05 (the largest of the feet: 74). Corpus neutrals +0.09 to +0.15 at 1.7 m, posed meshes 7 of
+    36,282 below -0.05 (kneeling on both bent knees)."""
     v = np.asarray(vertices, np.float64)
     height = max(float(np.ptp(v[:, 2])), 1e-12)
     z = (v[:, 2] - v[:, 2].min()) / height
